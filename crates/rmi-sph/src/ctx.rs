@@ -1,0 +1,67 @@
+//! Read-only view of everything a solver pass needs during one step.
+
+use crate::boundary::Boundary;
+use crate::kernel::CubicKernel;
+use crate::neighbours::NeighbourLists;
+use crate::particles::{Particles, PorousObject, SolidRest};
+
+/// Borrowed step context shared by the solver passes.
+pub struct Ctx<'a> {
+    /// Dynamic particles (positions at the start of the step).
+    pub p: &'a Particles,
+    /// Dynamic-dynamic neighbours.
+    pub nb: &'a NeighbourLists,
+    /// Dynamic-boundary neighbours.
+    pub nbb: &'a NeighbourLists,
+    /// Boundary particles.
+    pub bnd: &'a Boundary,
+    /// Porous objects.
+    pub objects: &'a [PorousObject],
+    /// Skeleton rest data.
+    pub rest: &'a SolidRest,
+    /// Kernel.
+    pub kernel: &'a CubicKernel,
+    /// Sampling volume V = d^3 (m^3).
+    pub vol: f64,
+    /// Time step (s).
+    pub dt: f64,
+    /// Fluid rest density (kg/m^3).
+    pub rho0_f: f64,
+}
+
+impl Ctx<'_> {
+    /// Porous object of a solid dynamic index.
+    #[inline]
+    pub fn object(&self, a: usize) -> &PorousObject {
+        &self.objects[self.p.material[a] as usize - 1]
+    }
+
+    /// Rest density used by the pressure solve: water's, or the skeleton's dry density.
+    #[inline]
+    pub fn rho0(&self, a: usize) -> f64 {
+        if self.p.is_fluid(a) {
+            self.rho0_f
+        } else {
+            self.object(a).material.dry_density
+        }
+    }
+
+    /// Volume factor `f(a <- b)` of physics.md sec. 1 for dynamic particles a, b.
+    #[inline]
+    pub fn volume_factor(&self, a: usize, b: usize) -> f64 {
+        let p = self.p;
+        match (p.is_fluid(a), p.is_fluid(b)) {
+            (true, true) => 1.0,
+            (true, false) => 1.0 - self.object(b).material.porosity,
+            (false, true) => 0.0,
+            (false, false) => {
+                let o = self.object(a);
+                if p.material[a] == p.material[b] && o.material.compressible {
+                    1.0 - o.material.porosity
+                } else {
+                    1.0
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,181 @@
+//! Corotated linear SPH elasticity of the skeleton (Peer et al. 2018) with the saturation
+//! softening and bloating terms of the porous method (physics.md sec. 3.5).
+//!
+//! The trace term carries lambda (the probable intent of the method); the flag
+//! `elasticity_reference_trace` reproduces the reference code, where it is missing.
+
+use crate::ctx::Ctx;
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+use rayon::prelude::*;
+
+/// Per-solid matrices of the current step.
+#[derive(Clone, Debug, Default)]
+pub struct ElasticFields {
+    /// R_s L_s for each solid.
+    pub rl: Vec<Matrix3<f64>>,
+    /// P_s R_s L_s (stress times correction) for the explicit force at x^n.
+    pub prl: Vec<Matrix3<f64>>,
+    /// `G_s = R_s L_s sum_r V_r0 grad W0_sr` (for the preconditioner).
+    pub gsum: Vec<Vector3<f64>>,
+}
+
+/// Extracts the rotation of each skeleton particle (Müller et al. 2016), warm-started.
+pub fn rotations(c: &Ctx, rot: &mut [UnitQuaternion<f64>]) {
+    let nf = c.p.n_fluid;
+    let x = &c.p.x;
+    let rest = c.rest;
+    rot.par_iter_mut().enumerate().for_each(|(s, q)| {
+        let a = nf + s;
+        let mut f = Matrix3::zeros();
+        for e in rest.start[s] as usize..rest.start[s + 1] as usize {
+            let r = rest.nbr[e] as usize;
+            f += rest.v0[r - nf] * (x[r] - x[a]) * (rest.l[s] * rest.grad0[e]).transpose();
+        }
+        *q = extract_rotation(&f, *q, 10);
+    });
+}
+
+/// Iterative rotation extraction from a deformation matrix, starting at `q`.
+pub fn extract_rotation(
+    a: &Matrix3<f64>,
+    mut q: UnitQuaternion<f64>,
+    iterations: usize,
+) -> UnitQuaternion<f64> {
+    for _ in 0..iterations {
+        let r = q.to_rotation_matrix();
+        let r = r.matrix();
+        let num = r.column(0).cross(&a.column(0))
+            + r.column(1).cross(&a.column(1))
+            + r.column(2).cross(&a.column(2));
+        let den = (r.column(0).dot(&a.column(0))
+            + r.column(1).dot(&a.column(1))
+            + r.column(2).dot(&a.column(2)))
+        .abs()
+            + 1e-9;
+        let omega = num / den;
+        let w = omega.norm();
+        if w < 1e-9 {
+            break;
+        }
+        q = UnitQuaternion::from_axis_angle(&nalgebra::Unit::new_unchecked(omega / w), w) * q;
+    }
+    q
+}
+
+/// Saturation-adjusted (shear modulus, trace coefficient) of solid dynamic index `a`.
+#[inline]
+pub fn moduli(c: &Ctx, a: usize, saturation: f64) -> (f64, f64) {
+    let o = c.object(a);
+    let m = &o.material;
+    (
+        (1.0 + saturation * m.softening_shear).max(1e-3) * o.mu,
+        (1.0 + saturation * m.softening_volume).max(1e-3) * o.lambda_trace,
+    )
+}
+
+/// Stress `P = 2 mu eps + (lam tr eps - bloat) I` from a displacement-gradient-like matrix.
+#[inline]
+fn stress(grad: &Matrix3<f64>, mu: f64, lam: f64, bloat: f64) -> Matrix3<f64> {
+    let eps = 0.5 * (grad + grad.transpose());
+    2.0 * mu * eps + Matrix3::from_diagonal_element(lam * eps.trace() - bloat)
+}
+
+/// Computes R L, the explicit stress term P R L at the current positions, and G_s.
+pub fn prepare(c: &Ctx, rot: &[UnitQuaternion<f64>], saturation: &[f64], out: &mut ElasticFields) {
+    let nf = c.p.n_fluid;
+    let ns = c.p.n_solid();
+    let rest = c.rest;
+    let x = &c.p.x;
+    out.rl.resize(ns, Matrix3::zeros());
+    out.rl
+        .par_iter_mut()
+        .enumerate()
+        .for_each(|(s, rl)| *rl = rot[s].to_rotation_matrix().matrix() * rest.l[s]);
+    let rl = &out.rl;
+    let rows: Vec<(Matrix3<f64>, Vector3<f64>)> = (0..ns)
+        .into_par_iter()
+        .map(|s| {
+            let a = nf + s;
+            let rs = rot[s].to_rotation_matrix();
+            let mut grad = Matrix3::zeros();
+            let mut gsum = Vector3::zeros();
+            for e in rest.start[s] as usize..rest.start[s + 1] as usize {
+                let r = rest.nbr[e] as usize;
+                let g = rl[s] * rest.grad0[e];
+                let u = (x[r] - x[a]) - rs * (rest.x0[r - nf] - rest.x0[s]);
+                grad += rest.v0[r - nf] * u * g.transpose();
+                gsum += rest.v0[r - nf] * g;
+            }
+            let sat = saturation[a];
+            let (mu, lam) = moduli(c, a, sat);
+            let o = c.object(a);
+            let bloat = o.lambda * o.material.bloating * sat;
+            (stress(&grad, mu, lam, bloat) * rl[s], gsum)
+        })
+        .collect();
+    out.prl.clear();
+    out.gsum.clear();
+    for (p, g) in rows {
+        out.prl.push(p);
+        out.gsum.push(g);
+    }
+}
+
+/// Linearised stress term P(eps(y)) R L for velocities `y`: eps = sym(dt sum V0 (y_r - y_s) (x) g).
+pub fn linear_prl(
+    c: &Ctx,
+    ef: &ElasticFields,
+    saturation: &[f64],
+    y: &[Vector3<f64>],
+    out: &mut [Matrix3<f64>],
+) {
+    let nf = c.p.n_fluid;
+    let rest = c.rest;
+    let dt = c.dt;
+    out.par_iter_mut().enumerate().for_each(|(s, prl)| {
+        let a = nf + s;
+        let mut grad = Matrix3::zeros();
+        for e in rest.start[s] as usize..rest.start[s + 1] as usize {
+            let r = rest.nbr[e] as usize;
+            grad += (dt * rest.v0[r - nf]) * (y[r] - y[a]) * (ef.rl[s] * rest.grad0[e]).transpose();
+        }
+        let (mu, lam) = moduli(c, a, saturation[a]);
+        *prl = stress(&grad, mu, lam, 0.0) * ef.rl[s];
+    });
+}
+
+/// Elastic force on solid `s` from per-solid `prl` matrices: `V_s0 sum_r V_r0 (PRL_s + PRL_r) grad W0_sr`.
+#[inline]
+pub fn force(c: &Ctx, s: usize, prl: &[Matrix3<f64>]) -> Vector3<f64> {
+    let nf = c.p.n_fluid;
+    let rest = c.rest;
+    let mut f = Vector3::zeros();
+    for e in rest.start[s] as usize..rest.start[s + 1] as usize {
+        let r = rest.nbr[e] as usize - nf;
+        f += rest.v0[r] * ((prl[s] + prl[r]) * rest.grad0[e]);
+    }
+    rest.v0[s] * f
+}
+
+/// Exact 3x3 diagonal block (w.r.t. y_s) of `-dt * F_lin`, divided by dt^2.
+pub fn diagonal_block(c: &Ctx, ef: &ElasticFields, saturation: &[f64], s: usize) -> Matrix3<f64> {
+    let nf = c.p.n_fluid;
+    let rest = c.rest;
+    let a = nf + s;
+    let vs = rest.v0[s];
+    let (mu, lam) = moduli(c, a, saturation[a]);
+    let g = ef.gsum[s];
+    let mut d = vs * (mu * g.norm_squared() * Matrix3::identity() + (mu + lam) * g * g.transpose());
+    for e in rest.start[s] as usize..rest.start[s + 1] as usize {
+        let r = rest.nbr[e] as usize;
+        let (mur, lamr) = moduli(c, r, saturation[r]);
+        // Neighbour r's strain sees y_s through g_rs = R_r L_r grad W(x_r0 - x_s0) = -R_r L_r grad0_sr.
+        let grs = -(ef.rl[r - nf] * rest.grad0[e]);
+        d += vs
+            * vs
+            * rest.v0[r - nf]
+            * (mur * grs.norm_squared() * Matrix3::identity()
+                + (mur + lamr) * grs * grs.transpose());
+    }
+    d
+}

@@ -1,0 +1,445 @@
+//! Strongly coupled implicit non-pressure solve (physics.md sec. 2 step 6).
+//!
+//! One matrix-free preconditioned CG over all dynamic velocities solves
+//! `m v* - dt F_lin(v*) = m v + dt F_exp`, where `F_lin` holds fluid viscosity (Weiler et al.
+//! 2018), Darcy-like drag, the velocity part of adhesion and the linearised corotated
+//! elasticity, and `F_exp` holds elasticity at x^n, the position part of adhesion, buoyancy
+//! and the boundary-velocity part of boundary viscosity.
+
+use crate::config::{Preconditioner, ViscosityMode};
+use crate::ctx::Ctx;
+use crate::density::{DensityFields, MIN_LOCAL_POROSITY};
+use crate::elasticity::{self, ElasticFields};
+use crate::par;
+use crate::particles::LAPLACE_D;
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+
+/// Settings resolved from the config.
+#[derive(Clone, Copy, Debug)]
+pub struct NonPressureSettings {
+    /// Fluid kinematic viscosity (m^2/s).
+    pub viscosity: f64,
+    /// Fluid-boundary kinematic viscosity (m^2/s).
+    pub boundary_viscosity: f64,
+    /// Viscosity in the implicit solve or explicit.
+    pub viscosity_mode: ViscosityMode,
+    /// CG relative tolerance.
+    pub tolerance: f64,
+    /// CG iteration cap.
+    pub max_iterations: u32,
+    /// Preconditioner.
+    pub preconditioner: Preconditioner,
+    /// Warm start from the previous velocity change.
+    pub warm_start: bool,
+}
+
+/// What one CG solve did.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct CgStats {
+    /// Iterations performed (0 when the solve was skipped).
+    pub iterations: u32,
+    /// Final relative residual.
+    pub residual: f64,
+}
+
+/// Work arrays reused between steps.
+#[derive(Clone, Debug, Default)]
+pub struct CgWork {
+    r: Vec<Vector3<f64>>,
+    z: Vec<Vector3<f64>>,
+    p: Vec<Vector3<f64>>,
+    ap: Vec<Vector3<f64>>,
+    b: Vec<Vector3<f64>>,
+    minv: Vec<Matrix3<f64>>,
+    prl: Vec<Matrix3<f64>>,
+}
+
+/// Per-step quantities the operator reads.
+struct Op<'a> {
+    c: &'a Ctx<'a>,
+    dens: &'a DensityFields,
+    ef: &'a ElasticFields,
+    s: &'a NonPressureSettings,
+    /// Current densities (kg/m^3).
+    rho: Vec<f64>,
+    eps_h: f64,
+    implicit_visc: bool,
+}
+
+impl Op<'_> {
+    #[inline]
+    fn phi(&self, i: usize) -> f64 {
+        self.dens.porosity[i].max(MIN_LOCAL_POROSITY)
+    }
+
+    /// Drag pair coefficient (N s/m^2 times 1/m^2 factor applied with the pair geometry).
+    #[inline]
+    fn drag(&self, i: usize, s: usize) -> f64 {
+        let beta = self.c.object(s).drag_beta;
+        LAPLACE_D * beta * self.c.p.mass[i] * self.c.vol / (self.rho[i] * self.phi(i))
+    }
+
+    /// Adhesion pair coefficient c_is (N/m), given W_is.
+    #[inline]
+    fn adhesion(&self, i: usize, s: usize, w: f64) -> f64 {
+        let o = self.c.object(s);
+        if o.adhesion == 0.0 {
+            return 0.0;
+        }
+        let sat = self.dens.saturation[s];
+        o.adhesion
+            * (1.0 - o.material.adhesion_falloff * sat)
+            * (self.c.p.mass[i] + self.c.p.mass[s])
+            / (self.rho[i] * self.phi(i) + o.material.dry_density)
+            * w
+    }
+
+    /// `F_lin(y)` at particle a (without elasticity, which needs the PRL pass).
+    fn pair_forces(&self, a: usize, y: &[Vector3<f64>]) -> Vector3<f64> {
+        let c = self.c;
+        let nb = c.nb.of(a);
+        let xa = c.p.x[a];
+        let ya = y[a];
+        let dt = c.dt;
+        let mut f = Vector3::zeros();
+        if c.p.is_fluid(a) {
+            if self.implicit_visc {
+                let mu = self.s.viscosity * c.rho0_f;
+                let va = c.p.mass[a] / self.rho[a];
+                for k in 0..nb.n_fluid {
+                    let b = nb.j[k] as usize;
+                    let xab = xa - c.p.x[b];
+                    let coef = va * (c.p.mass[b] / self.rho[b]) * LAPLACE_D * mu
+                        / (xab.norm_squared() + self.eps_h);
+                    f += (coef * (ya - y[b]).dot(&xab)) * nb.g[k];
+                }
+            }
+            for k in nb.n_fluid..nb.j.len() {
+                let s = nb.j[k] as usize;
+                let xas = xa - c.p.x[s];
+                let yas = ya - y[s];
+                f +=
+                    (self.drag(a, s) * yas.dot(&xas) / (xas.norm_squared() + self.eps_h)) * nb.g[k];
+                f -= (dt * self.adhesion(a, s, nb.w[k])) * yas;
+            }
+            if self.implicit_visc && self.s.boundary_viscosity > 0.0 {
+                f += self.boundary_visc(a, ya, false);
+            }
+        } else {
+            for k in 0..nb.n_fluid {
+                let i = nb.j[k] as usize;
+                let xai = xa - c.p.x[i];
+                let yai = ya - y[i];
+                f +=
+                    (self.drag(i, a) * yai.dot(&xai) / (xai.norm_squared() + self.eps_h)) * nb.g[k];
+                f -= (dt * self.adhesion(i, a, nb.w[k])) * yai;
+            }
+        }
+        f
+    }
+
+    /// Boundary viscosity with the fluid velocity `q` (matrix part) or the wall velocity (rhs part).
+    fn boundary_visc(&self, a: usize, q: Vector3<f64>, rhs: bool) -> Vector3<f64> {
+        let c = self.c;
+        let nbb = c.nbb.of(a);
+        let mub = self.s.boundary_viscosity * c.rho0_f;
+        let va = c.p.mass[a] / self.rho[a];
+        let mut f = Vector3::zeros();
+        for k in 0..nbb.j.len() {
+            let kk = nbb.j[k] as usize;
+            let xak = c.p.x[a] - c.bnd.x[kk];
+            let vel = if rhs { -c.bnd.v[kk] } else { q };
+            let coef = va * LAPLACE_D * mub * (c.rho0_f * c.bnd.volume[kk] / self.rho[a])
+                / (xak.norm_squared() + self.eps_h);
+            f += (coef * vel.dot(&xak)) * nbb.g[k];
+        }
+        f
+    }
+
+    /// `A y = m y - dt F_lin(y)`.
+    fn apply(
+        &self,
+        y: &[Vector3<f64>],
+        out: &mut [Vector3<f64>],
+        prl: &mut [Matrix3<f64>],
+        sat: &[f64],
+    ) {
+        let c = self.c;
+        let nf = c.p.n_fluid;
+        if c.p.n_solid() > 0 {
+            elasticity::linear_prl(c, self.ef, sat, y, prl);
+        }
+        let prl: &[Matrix3<f64>] = prl;
+        out.par_iter_mut().enumerate().for_each(|(a, o)| {
+            let m = c.p.mass[a];
+            if a >= nf && c.rest.fixed[a - nf] {
+                *o = m * y[a];
+                return;
+            }
+            let mut f = self.pair_forces(a, y);
+            if a >= nf {
+                f += elasticity::force(c, a - nf, prl);
+            }
+            *o = m * y[a] - c.dt * f;
+        });
+    }
+
+    /// Block-Jacobi preconditioner blocks (inverted).
+    fn preconditioner(&self, minv: &mut Vec<Matrix3<f64>>) {
+        let c = self.c;
+        let nf = c.p.n_fluid;
+        let dt = c.dt;
+        minv.resize(c.p.len(), Matrix3::identity());
+        minv.par_iter_mut().enumerate().for_each(|(a, mi)| {
+            let m = c.p.mass[a];
+            if self.s.preconditioner == Preconditioner::Identity
+                || (a >= nf && c.rest.fixed[a - nf])
+            {
+                *mi = Matrix3::identity() / m;
+                return;
+            }
+            let nb = c.nb.of(a);
+            let xa = c.p.x[a];
+            // d(F_lin)/d(y_a): pair terms coef * grad W x^T and -dt c I.
+            let mut jac = Matrix3::zeros();
+            let fluid = a < nf;
+            let range = if fluid { 0..nb.j.len() } else { 0..nb.n_fluid };
+            for k in range {
+                let b = nb.j[k] as usize;
+                let xab = xa - c.p.x[b];
+                let r2 = xab.norm_squared() + self.eps_h;
+                let (coef, adh) = if fluid && k < nb.n_fluid {
+                    if !self.implicit_visc {
+                        continue;
+                    }
+                    let mu = self.s.viscosity * c.rho0_f;
+                    (
+                        (m / self.rho[a]) * (c.p.mass[b] / self.rho[b]) * LAPLACE_D * mu / r2,
+                        0.0,
+                    )
+                } else if fluid {
+                    (self.drag(a, b) / r2, self.adhesion(a, b, nb.w[k]))
+                } else {
+                    (self.drag(b, a) / r2, self.adhesion(b, a, nb.w[k]))
+                };
+                jac += coef * nb.g[k] * xab.transpose();
+                jac -= Matrix3::from_diagonal_element(dt * adh);
+            }
+            let mut block = Matrix3::from_diagonal_element(m) - dt * jac;
+            if !fluid {
+                block +=
+                    dt * dt * elasticity::diagonal_block(c, self.ef, &self.dens.saturation, a - nf);
+            }
+            *mi = block
+                .try_inverse()
+                .unwrap_or_else(|| Matrix3::identity() / m);
+        });
+    }
+}
+
+/// True when the step needs the implicit solve at all.
+pub fn needed(c: &Ctx, s: &NonPressureSettings) -> bool {
+    c.p.n_solid() > 0
+        || (s.viscosity_mode == ViscosityMode::Implicit
+            && (s.viscosity > 0.0 || s.boundary_viscosity > 0.0)
+            && c.p.n_fluid > 0)
+}
+
+fn dot(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
+    par::sum(a.len(), |i| a[i].dot(&b[i]))
+}
+
+/// Solves for v* and writes it into `v`. `kappa_prev` (kappa of the previous step) drives
+/// buoyancy; `dv_prev` is the warm start, updated to v* - v on exit.
+#[allow(clippy::too_many_arguments)]
+pub fn solve(
+    c: &Ctx,
+    dens: &DensityFields,
+    ef: &ElasticFields,
+    s: &NonPressureSettings,
+    kappa_prev: &[f64],
+    v: &mut [Vector3<f64>],
+    dv_prev: &mut [Vector3<f64>],
+    w: &mut CgWork,
+) -> CgStats {
+    let n = c.p.len();
+    let nf = c.p.n_fluid;
+    let rho: Vec<f64> = (0..n)
+        .map(|a| {
+            dens.rho_ratio[a]
+                * if a < nf {
+                    c.rho0_f
+                } else {
+                    c.object(a).material.dry_density
+                }
+        })
+        .collect();
+    let h = c.kernel.support();
+    let op = Op {
+        c,
+        dens,
+        ef,
+        s,
+        rho,
+        eps_h: 0.01 * h * h,
+        implicit_visc: s.viscosity_mode == ViscosityMode::Implicit && s.viscosity > 0.0,
+    };
+    let sat = &dens.saturation;
+    for buf in [&mut w.r, &mut w.z, &mut w.p, &mut w.ap, &mut w.b] {
+        buf.resize(n, Vector3::zeros());
+    }
+    w.prl.resize(c.p.n_solid(), Matrix3::zeros());
+    // Right-hand side m v + dt F_exp.
+    {
+        let vv: &[Vector3<f64>] = v;
+        w.b.par_iter_mut().enumerate().for_each(|(a, b)| {
+            let m = c.p.mass[a];
+            if a >= nf && c.rest.fixed[a - nf] {
+                *b = m * vv[a];
+                return;
+            }
+            let nb = c.nb.of(a);
+            let xa = c.p.x[a];
+            let mut f = Vector3::zeros();
+            if a < nf {
+                for k in nb.n_fluid..nb.j.len() {
+                    let sidx = nb.j[k] as usize;
+                    f -= op.adhesion(a, sidx, nb.w[k]) * (xa - c.p.x[sidx]);
+                }
+                if op.implicit_visc && s.boundary_viscosity > 0.0 {
+                    f += op.boundary_visc(a, Vector3::zeros(), true);
+                }
+            } else {
+                let phi = c.object(a).material.porosity;
+                for k in 0..nb.n_fluid {
+                    let i = nb.j[k] as usize;
+                    f -= op.adhesion(i, a, nb.w[k]) * (xa - c.p.x[i]);
+                    // Buoyancy: reaction of the fluid-side skeleton pressure term (lagged).
+                    f -= ((1.0 - phi) * c.vol * c.p.mass[i] * kappa_prev[i]) * nb.g[k];
+                }
+                f += elasticity::force(c, a - nf, &ef.prl);
+            }
+            *b = m * vv[a] + c.dt * f;
+        });
+    }
+    op.preconditioner(&mut w.minv);
+    // x0 = v + dv_prev; the unknown lives in `w.z` temporarily then moves to v.
+    let mut x: Vec<Vector3<f64>> = (0..n)
+        .map(|a| {
+            if s.warm_start {
+                v[a] + dv_prev[a]
+            } else {
+                v[a]
+            }
+        })
+        .collect();
+    op.apply(&x, &mut w.ap, &mut w.prl, sat);
+    w.r.par_iter_mut()
+        .enumerate()
+        .for_each(|(a, r)| *r = w.b[a] - w.ap[a]);
+    let bnorm = dot(&w.b, &w.b).sqrt().max(1e-300);
+    let minv = &w.minv;
+    w.z.par_iter_mut()
+        .enumerate()
+        .for_each(|(a, z)| *z = minv[a] * w.r[a]);
+    w.p.copy_from_slice(&w.z);
+    let mut rz = dot(&w.r, &w.z);
+    let mut stats = CgStats {
+        iterations: 0,
+        residual: dot(&w.r, &w.r).sqrt() / bnorm,
+    };
+    while stats.residual > s.tolerance && stats.iterations < s.max_iterations {
+        op.apply(&w.p, &mut w.ap, &mut w.prl, sat);
+        let pap = dot(&w.p, &w.ap);
+        if pap <= 0.0 || !pap.is_finite() {
+            break;
+        }
+        let alpha = rz / pap;
+        x.par_iter_mut()
+            .zip(w.p.par_iter())
+            .for_each(|(xi, pi)| *xi += alpha * pi);
+        w.r.par_iter_mut()
+            .zip(w.ap.par_iter())
+            .for_each(|(ri, api)| *ri -= alpha * api);
+        w.z.par_iter_mut()
+            .enumerate()
+            .for_each(|(a, z)| *z = minv[a] * w.r[a]);
+        let rz_new = dot(&w.r, &w.z);
+        let beta = rz_new / rz;
+        rz = rz_new;
+        w.p.par_iter_mut()
+            .zip(w.z.par_iter())
+            .for_each(|(pi, zi)| *pi = zi + beta * *pi);
+        stats.iterations += 1;
+        stats.residual = dot(&w.r, &w.r).sqrt() / bnorm;
+    }
+    v.par_iter_mut()
+        .zip(dv_prev.par_iter_mut())
+        .zip(x.par_iter())
+        .for_each(|((vi, dvi), xi)| {
+            *dvi = xi - *vi;
+            *vi = *xi;
+        });
+    stats
+}
+
+/// Explicit accelerations outside the implicit solve: SPlisHSPlasH "standard" fluid viscosity
+/// (when configured explicit) and skeleton damping; added to `acc` (m/s^2).
+pub fn explicit_accelerations(
+    c: &Ctx,
+    dens: &DensityFields,
+    s: &NonPressureSettings,
+    v: &[Vector3<f64>],
+    acc: &mut [Vector3<f64>],
+) {
+    let nf = c.p.n_fluid;
+    let h = c.kernel.support();
+    let eps_h = 0.01 * h * h;
+    let explicit_visc = s.viscosity_mode == ViscosityMode::Explicit;
+    acc.par_iter_mut().enumerate().for_each(|(a, acc)| {
+        let nb = c.nb.of(a);
+        let xa = c.p.x[a];
+        let va = v[a];
+        if a < nf {
+            if !explicit_visc {
+                return;
+            }
+            let mut sum = Vector3::zeros();
+            for k in 0..nb.n_fluid {
+                let b = nb.j[k] as usize;
+                let xab = xa - c.p.x[b];
+                let vol_b = c.p.mass[b] / (dens.rho_ratio[b] * c.rho0_f);
+                sum += (vol_b * (va - v[b]).dot(&xab) / (xab.norm_squared() + eps_h)) * nb.g[k];
+            }
+            let mut bsum = Vector3::zeros();
+            if s.boundary_viscosity > 0.0 {
+                let nbb = c.nbb.of(a);
+                for k in 0..nbb.j.len() {
+                    let kk = nbb.j[k] as usize;
+                    let xak = xa - c.bnd.x[kk];
+                    bsum += (c.bnd.volume[kk] / dens.rho_ratio[a] * (va - c.bnd.v[kk]).dot(&xak)
+                        / (xak.norm_squared() + eps_h))
+                        * nbb.g[k];
+                }
+            }
+            *acc += LAPLACE_D * (s.viscosity * sum + s.boundary_viscosity * bsum);
+        } else {
+            let o = c.object(a);
+            let nu = o.material.damping;
+            if nu == 0.0 || c.rest.fixed[a - nf] {
+                return;
+            }
+            let mut sum = Vector3::zeros();
+            for k in nb.n_fluid..nb.j.len() {
+                let b = nb.j[k] as usize;
+                if c.p.material[b] != c.p.material[a] {
+                    continue;
+                }
+                let xab = xa - c.p.x[b];
+                sum += (c.vol * (va - v[b]).dot(&xab) / (xab.norm_squared() + eps_h)) * nb.g[k];
+            }
+            *acc += LAPLACE_D * nu * sum;
+        }
+    });
+}

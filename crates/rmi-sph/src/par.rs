@@ -1,0 +1,47 @@
+//! Deterministic parallel helpers: results never depend on the number of threads.
+//!
+//! Floating-point sums are evaluated over fixed-size chunks whose partial sums are then added
+//! sequentially, so the rounding is the same whether one or many threads do the work.
+
+use rayon::prelude::*;
+
+/// Chunk length for reductions; fixed so that results are independent of the thread count.
+pub const REDUCE_CHUNK: usize = 2048;
+
+/// Deterministic sum of `f(i)` for `i in 0..n`.
+pub fn sum<F>(n: usize, f: F) -> f64
+where
+    F: Fn(usize) -> f64 + Sync,
+{
+    let nchunks = n.div_ceil(REDUCE_CHUNK);
+    let partial: Vec<f64> = (0..nchunks)
+        .into_par_iter()
+        .map(|c| {
+            let lo = c * REDUCE_CHUNK;
+            let hi = (lo + REDUCE_CHUNK).min(n);
+            let mut s = 0.0;
+            for i in lo..hi {
+                s += f(i);
+            }
+            s
+        })
+        .collect();
+    partial.iter().sum()
+}
+
+/// Deterministic maximum of `f(i)`; NaN wins so that divergence is never hidden.
+pub fn max<F>(n: usize, f: F) -> f64
+where
+    F: Fn(usize) -> f64 + Sync,
+{
+    (0..n).into_par_iter().map(&f).reduce(
+        || f64::NEG_INFINITY,
+        |a, b| {
+            if a.is_nan() || b.is_nan() {
+                f64::NAN
+            } else {
+                a.max(b)
+            }
+        },
+    )
+}

@@ -1,0 +1,267 @@
+//! Porosity-aware pressure solve: relaxed Jacobi IISPH in the DFSPH-factor form of
+//! physics.md sec. 2 step 10, with per-material convergence on the mean compression.
+//!
+//! The unknown is kappa = p / rho (m^2/s^2, "pressure over density"); the pressure
+//! acceleration of a fluid pair is `-V (kappa_a + kappa_b) grad W`.
+
+use crate::ctx::Ctx;
+use crate::density::DensityFields;
+use crate::par;
+use nalgebra::Vector3;
+use rayon::prelude::*;
+
+/// Solver settings resolved from the config.
+#[derive(Clone, Copy, Debug)]
+pub struct PressureSettings {
+    /// Allowed mean compression (fraction).
+    pub max_error: f64,
+    /// Minimum iterations.
+    pub min_iterations: u32,
+    /// Maximum iterations.
+    pub max_iterations: u32,
+    /// Relaxation factor.
+    pub omega: f64,
+    /// Warm start from the previous step.
+    pub warm_start: bool,
+}
+
+/// What one pressure solve did.
+#[derive(Clone, Debug, Default)]
+pub struct PressureStats {
+    /// Iterations performed.
+    pub iterations: u32,
+    /// Final mean compression per material (index 0 = fluid, 1 + k = object k).
+    pub error: Vec<f64>,
+}
+
+/// Work arrays kept between steps to avoid reallocation.
+#[derive(Clone, Debug, Default)]
+pub struct PressureWork {
+    source: Vec<f64>,
+    /// Per particle `sum_k V_k grad W_ak` over boundary neighbours (constant within a step).
+    gb: Vec<Vector3<f64>>,
+    ap: Vec<Vector3<f64>>,
+    err: Vec<f64>,
+}
+
+/// Pressure acceleration of particle `a` for the current kappa.
+#[inline]
+fn accel(c: &Ctx, a: usize, kappa: &[f64], rho0: &[f64], gb: &[Vector3<f64>]) -> Vector3<f64> {
+    let nb = c.nb.of(a);
+    let ka = kappa[a];
+    let v = c.vol;
+    let mut acc = Vector3::zeros();
+    if c.p.is_fluid(a) {
+        for k in 0..nb.n_fluid {
+            acc -= (v * (ka + kappa[nb.j[k] as usize])) * nb.g[k];
+        }
+        for k in nb.n_fluid..nb.j.len() {
+            let b = nb.j[k] as usize;
+            acc -= (c.volume_factor(a, b) * v * ka) * nb.g[k];
+        }
+    } else {
+        for k in nb.n_fluid..nb.j.len() {
+            let b = nb.j[k] as usize;
+            let f_ab = c.volume_factor(a, b);
+            let f_ba = c.volume_factor(b, a);
+            acc -= (f_ab * v * (ka + f_ba * rho0[b] / rho0[a] * kappa[b])) * nb.g[k];
+        }
+    }
+    acc - ka * gb[a]
+}
+
+/// Divergence-like sum `sum_b f V (q_a - q_b) . grad W_ab` over dynamic neighbours.
+#[inline]
+fn div(c: &Ctx, a: usize, q: &[Vector3<f64>]) -> f64 {
+    let nb = c.nb.of(a);
+    let v = c.vol;
+    let qa = q[a];
+    let mut s = 0.0;
+    if c.p.is_fluid(a) {
+        for k in 0..nb.n_fluid {
+            s += v * (qa - q[nb.j[k] as usize]).dot(&nb.g[k]);
+        }
+        for k in nb.n_fluid..nb.j.len() {
+            let b = nb.j[k] as usize;
+            s += c.volume_factor(a, b) * v * (qa - q[b]).dot(&nb.g[k]);
+        }
+    } else {
+        for k in nb.n_fluid..nb.j.len() {
+            let b = nb.j[k] as usize;
+            s += c.volume_factor(a, b) * v * (qa - q[b]).dot(&nb.g[k]);
+        }
+    }
+    s
+}
+
+/// Boundary part of the velocity divergence, `sum_k V_k (v_a - v_k) . grad W_ak`.
+fn boundary_div(c: &Ctx, a: usize, va: &Vector3<f64>) -> f64 {
+    let nbb = c.nbb.of(a);
+    let mut s = 0.0;
+    for k in 0..nbb.j.len() {
+        let kk = nbb.j[k] as usize;
+        s += c.bnd.volume[kk] * (va - c.bnd.v[kk]).dot(&nbb.g[k]);
+    }
+    s
+}
+
+/// Runs the pressure solve on the predicted velocities `v` (updated in place).
+///
+/// `kappa_dt2` holds kappa * dt^2 of the previous step on entry (warm start) and of this
+/// step on exit. Returns the body reaction forces and torques (N, N m) per body.
+#[allow(clippy::too_many_arguments)]
+pub fn solve(
+    c: &Ctx,
+    dens: &DensityFields,
+    settings: &PressureSettings,
+    rho0: &[f64],
+    v: &mut [Vector3<f64>],
+    kappa: &mut Vec<f64>,
+    kappa_dt2: &mut [f64],
+    work: &mut PressureWork,
+    n_materials: usize,
+) -> (PressureStats, Vec<(Vector3<f64>, Vector3<f64>)>) {
+    let n = c.p.len();
+    let dt = c.dt;
+    let dt2 = dt * dt;
+    work.source.resize(n, 0.0);
+    work.gb.resize(n, Vector3::zeros());
+    work.gb.par_iter_mut().enumerate().for_each(|(a, gb)| {
+        let nbb = c.nbb.of(a);
+        *gb = (0..nbb.j.len())
+            .map(|k| c.bnd.volume[nbb.j[k] as usize] * nbb.g[k])
+            .fold(Vector3::zeros(), |s, x| s + x);
+    });
+    work.ap.resize(n, Vector3::zeros());
+    work.err.resize(n, 0.0);
+    kappa.resize(n, 0.0);
+    {
+        let vv: &[Vector3<f64>] = v;
+        let source = &mut work.source;
+        source
+            .par_iter_mut()
+            .zip(kappa.par_iter_mut())
+            .enumerate()
+            .for_each(|(a, (s, ka))| {
+                let rho_adv = dens.rho_ratio[a] + dt * (div(c, a, vv) + boundary_div(c, a, &vv[a]));
+                *s = 1.0 - rho_adv;
+                *ka = if settings.warm_start && rho_adv > 1.0 {
+                    0.5 * kappa_dt2[a].min(2.5e-4) / dt2
+                } else {
+                    0.0
+                };
+            });
+    }
+    let counts: Vec<f64> = (0..n_materials)
+        .map(|m| {
+            c.p.material
+                .iter()
+                .filter(|&&x| x as usize == m)
+                .count()
+                .max(1) as f64
+        })
+        .collect();
+    let mut stats = PressureStats {
+        iterations: 0,
+        error: vec![0.0; n_materials],
+    };
+    let eta = settings.max_error;
+    loop {
+        {
+            let kap: &[f64] = kappa;
+            let gb = &work.gb;
+            work.ap
+                .par_iter_mut()
+                .enumerate()
+                .for_each(|(a, ap)| *ap = accel(c, a, kap, rho0, gb));
+        }
+        {
+            let ap: &[Vector3<f64>] = &work.ap;
+            let source = &work.source;
+            let gb = &work.gb;
+            kappa
+                .par_iter_mut()
+                .zip(work.err.par_iter_mut())
+                .enumerate()
+                .for_each(|(a, (ka, e))| {
+                    let akappa = dt2 * (div(c, a, ap) + ap[a].dot(&gb[a]));
+                    let residual = source[a] - akappa;
+                    *e = (-residual).max(0.0);
+                    let alpha = dens.alpha[a];
+                    *ka = if alpha > 0.0 {
+                        (*ka - settings.omega * residual * alpha / dt2).max(0.0)
+                    } else {
+                        0.0
+                    };
+                });
+        }
+        stats.iterations += 1;
+        let mut converged = true;
+        for (m, em) in stats.error.iter_mut().enumerate() {
+            let mat = &c.p.material;
+            let errs = &work.err;
+            *em = par::sum(n, |a| if mat[a] as usize == m { errs[a] } else { 0.0 }) / counts[m];
+            if *em > eta {
+                converged = false;
+            }
+        }
+        if (converged && stats.iterations >= settings.min_iterations)
+            || stats.iterations >= settings.max_iterations
+        {
+            break;
+        }
+    }
+    // Apply the pressure of the final kappa.
+    {
+        let kap: &[f64] = kappa;
+        let gb = &work.gb;
+        work.ap
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(a, ap)| *ap = accel(c, a, kap, rho0, gb));
+    }
+    v.par_iter_mut()
+        .zip(work.ap.par_iter())
+        .for_each(|(vi, ap)| *vi += dt * ap);
+    kappa_dt2
+        .par_iter_mut()
+        .zip(kappa.par_iter())
+        .for_each(|(kt, k)| *kt = k * dt2);
+    let reactions = body_reactions(c, kappa);
+    (stats, reactions)
+}
+
+/// Force and torque of the dynamic particles' pressure on each body: `m_a kappa_a V_k grad W_ak`.
+fn body_reactions(c: &Ctx, kappa: &[f64]) -> Vec<(Vector3<f64>, Vector3<f64>)> {
+    let nbody = c.bnd.bodies.len();
+    let n = c.p.len();
+    let chunk = par::REDUCE_CHUNK;
+    let partial: Vec<Vec<(Vector3<f64>, Vector3<f64>)>> = (0..n.div_ceil(chunk))
+        .into_par_iter()
+        .map(|ci| {
+            let mut acc = vec![(Vector3::zeros(), Vector3::zeros()); nbody];
+            for a in ci * chunk..((ci + 1) * chunk).min(n) {
+                if kappa[a] == 0.0 {
+                    continue;
+                }
+                let nbb = c.nbb.of(a);
+                for k in 0..nbb.j.len() {
+                    let kk = nbb.j[k] as usize;
+                    let bi = c.bnd.body[kk] as usize;
+                    let f = (c.p.mass[a] * kappa[a] * c.bnd.volume[kk]) * nbb.g[k];
+                    acc[bi].0 += f;
+                    acc[bi].1 += (c.bnd.x[kk] - c.bnd.bodies[bi].state.position).cross(&f);
+                }
+            }
+            acc
+        })
+        .collect();
+    let mut out = vec![(Vector3::zeros(), Vector3::zeros()); nbody];
+    for p in partial {
+        for (o, q) in out.iter_mut().zip(p) {
+            o.0 += q.0;
+            o.1 += q.1;
+        }
+    }
+    out
+}

@@ -1,0 +1,641 @@
+//! The simulation: owns the particles, the bodies, a rayon pool and the per-step solver order.
+
+use crate::boundary::{BodyState, Boundary};
+use crate::config::SimConfig;
+use crate::contact::{self, Contact};
+use crate::ctx::Ctx;
+use crate::density::{self, DensityFields};
+use crate::elasticity::{self, ElasticFields};
+use crate::error::{Result, RmiError};
+use crate::grid::{bounds, Grid};
+use crate::kernel::CubicKernel;
+use crate::neighbours::NeighbourLists;
+use crate::nonpressure::{self, CgStats, CgWork, NonPressureSettings};
+use crate::particles::{Particles, PorousObject, SolidRest, SolidState};
+use crate::pressure::{self, PressureSettings, PressureStats, PressureWork};
+use crate::scene;
+use crate::snapshot::Snapshot;
+use nalgebra::Vector3;
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// Figures of the last step.
+#[derive(Clone, Debug, Default)]
+pub struct StepStats {
+    /// Pressure solve.
+    pub pressure: PressureStats,
+    /// Implicit non-pressure solve.
+    pub cg: CgStats,
+    /// Dynamic-dynamic neighbour pairs stored.
+    pub neighbour_pairs: usize,
+    /// Particle-body contacts resolved.
+    pub contacts: usize,
+    /// Wall-clock seconds per phase: neighbours, fields, implicit solve, pressure, rest.
+    pub seconds: [f64; 5],
+}
+
+/// A porous-flow SPH simulation. All quantities SI; z is up by convention of the presets.
+pub struct Simulation {
+    cfg: SimConfig,
+    kernel: CubicKernel,
+    pool: std::sync::Arc<rayon::ThreadPool>,
+    threads: usize,
+    pub(crate) p: Particles,
+    pub(crate) rest: SolidRest,
+    pub(crate) solid: SolidState,
+    pub(crate) objects: Vec<PorousObject>,
+    pub(crate) bnd: Boundary,
+    grid: Grid,
+    nb: NeighbourLists,
+    nbb: NeighbourLists,
+    pub(crate) dens: DensityFields,
+    ef: ElasticFields,
+    pub(crate) kappa: Vec<f64>,
+    pub(crate) kappa_dt2: Vec<f64>,
+    pub(crate) dv_prev: Vec<Vector3<f64>>,
+    acc: Vec<Vector3<f64>>,
+    rho0: Vec<f64>,
+    pwork: PressureWork,
+    cgwork: CgWork,
+    pub(crate) time: f64,
+    pub(crate) step: u64,
+    stats: StepStats,
+    contacts: Vec<Contact>,
+}
+
+/// Default thread count: `RMI_NUM_THREADS`, else `RAYON_NUM_THREADS`, else the core count.
+pub fn default_threads() -> usize {
+    for var in ["RMI_NUM_THREADS", "RAYON_NUM_THREADS"] {
+        if let Some(n) = std::env::var(var)
+            .ok()
+            .and_then(|s| s.parse::<usize>().ok())
+            .filter(|&n| n > 0)
+        {
+            return n;
+        }
+    }
+    std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1)
+}
+
+impl Simulation {
+    /// Builds the scene of `cfg` (validated first) with `threads` worker threads (None: default).
+    pub fn new(cfg: SimConfig, threads: Option<usize>) -> Result<Self> {
+        cfg.validate()?;
+        let threads = threads.unwrap_or_else(default_threads);
+        if threads == 0 || threads > 1024 {
+            return Err(RmiError::config(
+                "num_threads",
+                threads,
+                "an integer in [1, 1024]",
+            ));
+        }
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .map_err(|e| {
+                RmiError::config(
+                    "num_threads",
+                    threads,
+                    format!("a thread count the OS accepts ({e})"),
+                )
+            })?;
+        let kernel = CubicKernel::new(cfg.support());
+        let pool = std::sync::Arc::new(pool);
+        let built = pool.install(|| scene::build(&cfg, &kernel));
+        let bnd = Boundary::new(&cfg.scene.bodies, cfg.spacing(), &kernel);
+        let n = built.particles.len();
+        let mut sim = Simulation {
+            kernel,
+            pool,
+            threads,
+            rho0: Vec::new(),
+            p: built.particles,
+            rest: built.rest,
+            solid: built.solid_state,
+            objects: built.objects,
+            bnd,
+            grid: Grid::default(),
+            nb: NeighbourLists::default(),
+            nbb: NeighbourLists::default(),
+            dens: DensityFields::default(),
+            ef: ElasticFields::default(),
+            kappa: vec![0.0; n],
+            kappa_dt2: vec![0.0; n],
+            dv_prev: vec![Vector3::zeros(); n],
+            acc: vec![Vector3::zeros(); n],
+            pwork: PressureWork::default(),
+            cgwork: CgWork::default(),
+            time: 0.0,
+            step: 0,
+            stats: StepStats::default(),
+            contacts: Vec::new(),
+            cfg,
+        };
+        sim.refresh_rho0();
+        Ok(sim)
+    }
+
+    fn refresh_rho0(&mut self) {
+        let nf = self.p.n_fluid;
+        let objects = &self.objects;
+        let f = self.cfg.fluid.density;
+        self.rho0 = (0..self.p.len())
+            .map(|a| {
+                if a < nf {
+                    f
+                } else {
+                    objects[self.p.material[a] as usize - 1]
+                        .material
+                        .dry_density
+                }
+            })
+            .collect();
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &SimConfig {
+        &self.cfg
+    }
+
+    /// Worker threads of this simulation's pool.
+    pub fn threads(&self) -> usize {
+        self.threads
+    }
+
+    /// Simulated time in s.
+    pub fn time(&self) -> f64 {
+        self.time
+    }
+
+    /// Completed steps.
+    pub fn step_count(&self) -> u64 {
+        self.step
+    }
+
+    /// Time step in s.
+    pub fn dt(&self) -> f64 {
+        self.cfg.dt
+    }
+
+    /// Dynamic particles (read only).
+    pub fn particles(&self) -> &Particles {
+        &self.p
+    }
+
+    /// Porous objects.
+    pub fn objects(&self) -> &[PorousObject] {
+        &self.objects
+    }
+
+    /// Boundary bodies and particles.
+    pub fn boundary(&self) -> &Boundary {
+        &self.bnd
+    }
+
+    /// Density ratio, porosity and saturation fields of the last step.
+    pub fn fields(&self) -> &DensityFields {
+        &self.dens
+    }
+
+    /// Pressure unknown kappa (m^2/s^2) of the last step; physical pressure is `rho * kappa`.
+    pub fn kappa(&self) -> &[f64] {
+        &self.kappa
+    }
+
+    /// Figures of the last step.
+    pub fn stats(&self) -> &StepStats {
+        &self.stats
+    }
+
+    /// Contacts of the last step.
+    pub fn contacts(&self) -> &[Contact] {
+        &self.contacts
+    }
+
+    /// Particle radius r in m.
+    pub fn radius(&self) -> f64 {
+        self.cfg.particle_radius
+    }
+
+    /// Sampling volume V = (2r)^3 in m^3.
+    pub fn volume(&self) -> f64 {
+        self.cfg.spacing().powi(3)
+    }
+
+    /// Sets the linear and angular velocity (m/s, rad/s) of a kinematic body.
+    pub fn set_body_velocity(
+        &mut self,
+        body: usize,
+        v: Vector3<f64>,
+        w: Vector3<f64>,
+    ) -> Result<()> {
+        let b = self
+            .bnd
+            .bodies
+            .get_mut(body)
+            .ok_or_else(|| RmiError::config("body", body, "an existing body index"))?;
+        if !b.kinematic {
+            return Err(RmiError::config(
+                format!("scene.bodies[{body}].kinematic"),
+                false,
+                "true to move the body",
+            ));
+        }
+        if !(v.iter().chain(w.iter()).all(|c| c.is_finite())) {
+            return Err(RmiError::config(
+                "body velocity",
+                format!("{v:?}"),
+                "finite components (m/s, rad/s)",
+            ));
+        }
+        b.state.velocity = v;
+        b.state.angular_velocity = w;
+        Ok(())
+    }
+
+    /// Places a kinematic body (pose only; velocities unchanged).
+    pub fn set_body_pose(
+        &mut self,
+        body: usize,
+        position: Vector3<f64>,
+        rotation: nalgebra::UnitQuaternion<f64>,
+    ) -> Result<()> {
+        let b = self
+            .bnd
+            .bodies
+            .get_mut(body)
+            .ok_or_else(|| RmiError::config("body", body, "an existing body index"))?;
+        if !b.kinematic {
+            return Err(RmiError::config(
+                format!("scene.bodies[{body}].kinematic"),
+                false,
+                "true to move the body",
+            ));
+        }
+        b.state.position = position;
+        b.state.rotation = rotation;
+        self.bnd.invalidate();
+        Ok(())
+    }
+
+    /// Advances one time step.
+    pub fn step(&mut self) -> Result<&StepStats> {
+        self.step_with(|_| {})
+    }
+
+    /// Advances one step; `hook` may modify velocities after the pressure solve and contact
+    /// projection (the robot layer's friction), before positions are integrated.
+    pub fn step_with<F>(&mut self, hook: F) -> Result<&StepStats>
+    where
+        F: FnOnce(&mut ContactStage<'_>) + Send,
+    {
+        let pool = self.pool.clone();
+        pool.install(|| self.step_inner(hook))?;
+        Ok(&self.stats)
+    }
+
+    /// Runs `n` steps.
+    pub fn run(&mut self, n: u64) -> Result<()> {
+        for _ in 0..n {
+            self.step()?;
+        }
+        Ok(())
+    }
+
+    fn reorder_fluid(&mut self) {
+        let nf = self.p.n_fluid;
+        if nf < 2 {
+            return;
+        }
+        let (lo, hi) = bounds(&self.p.x[..nf], self.kernel.support());
+        let mut g = Grid::default();
+        g.build(&self.p.x[..nf], lo, hi, self.kernel.support());
+        let perm: Vec<usize> = g.sorted_idx.iter().map(|&i| i as usize).collect();
+        fn apply<T: Copy>(v: &mut [T], perm: &[usize]) {
+            let old: Vec<T> = v[..perm.len()].to_vec();
+            for (new, &o) in perm.iter().enumerate() {
+                v[new] = old[o];
+            }
+        }
+        apply(&mut self.p.x, &perm);
+        apply(&mut self.p.v, &perm);
+        apply(&mut self.p.mass, &perm);
+        apply(&mut self.p.id, &perm);
+        apply(&mut self.kappa_dt2, &perm);
+        apply(&mut self.dv_prev, &perm);
+    }
+
+    fn step_inner<F>(&mut self, hook: F) -> Result<()>
+    where
+        F: FnOnce(&mut ContactStage<'_>),
+    {
+        let t0 = Instant::now();
+        if self.cfg.reorder_every > 0 && self.step % self.cfg.reorder_every as u64 == 0 {
+            self.reorder_fluid();
+        }
+        let cfg = &self.cfg;
+        let dt = cfg.dt;
+        let h = self.kernel.support();
+        // 1. Neighbours.
+        self.bnd.ensure_grid(h);
+        let (lo, hi) = bounds(&self.p.x, h);
+        self.grid.build(&self.p.x, lo, hi, h);
+        self.nb
+            .build(&self.p.x, &self.grid, &self.kernel, self.p.n_fluid, true);
+        self.nbb
+            .build(&self.p.x, &self.bnd.grid, &self.kernel, 0, false);
+        let t1 = Instant::now();
+        let ctx = Ctx {
+            p: &self.p,
+            nb: &self.nb,
+            nbb: &self.nbb,
+            bnd: &self.bnd,
+            objects: &self.objects,
+            rest: &self.rest,
+            kernel: &self.kernel,
+            vol: cfg.spacing().powi(3),
+            dt,
+            rho0_f: cfg.fluid.density,
+        };
+        // 2-5. Densities, alpha, porosity, saturation; rotations and elastic stress.
+        density::compute(&ctx, &mut self.dens);
+        if self.p.n_solid() > 0 {
+            elasticity::rotations(&ctx, &mut self.solid.rotation);
+            elasticity::prepare(
+                &ctx,
+                &self.solid.rotation,
+                &self.dens.saturation,
+                &mut self.ef,
+            );
+        }
+        let t2 = Instant::now();
+        // 6. Strongly coupled implicit non-pressure solve.
+        let nps = NonPressureSettings {
+            viscosity: cfg.fluid.viscosity,
+            boundary_viscosity: cfg.fluid.boundary_viscosity,
+            viscosity_mode: cfg.fluid.viscosity_mode,
+            tolerance: cfg.cg.tolerance,
+            max_iterations: cfg.cg.max_iterations,
+            preconditioner: cfg.cg.preconditioner,
+            warm_start: cfg.cg.warm_start,
+        };
+        let v_old = self.p.v.clone();
+        let kappa_dt2_old = self.kappa_dt2.clone();
+        let mut v = self.p.v.clone();
+        let kappa_prev: Vec<f64> = self.kappa_dt2.iter().map(|k| k / (dt * dt)).collect();
+        let cg = if nonpressure::needed(&ctx, &nps) {
+            nonpressure::solve(
+                &ctx,
+                &self.dens,
+                &self.ef,
+                &nps,
+                &kappa_prev,
+                &mut v,
+                &mut self.dv_prev,
+                &mut self.cgwork,
+            )
+        } else {
+            CgStats::default()
+        };
+        // 7-9. Explicit accelerations and gravity, then predict.
+        let g = Vector3::from(cfg.gravity);
+        self.acc.par_iter_mut().for_each(|a| *a = g);
+        nonpressure::explicit_accelerations(&ctx, &self.dens, &nps, &v_old, &mut self.acc);
+        let nf = self.p.n_fluid;
+        let fixed = &self.rest.fixed;
+        v.par_iter_mut()
+            .zip(self.acc.par_iter())
+            .enumerate()
+            .for_each(|(a, (vi, ai))| {
+                if a >= nf && fixed[a - nf] {
+                    *vi = Vector3::zeros();
+                } else {
+                    *vi += dt * ai;
+                }
+            });
+        let t3 = Instant::now();
+        // 10. Pressure solve.
+        let ps = PressureSettings {
+            max_error: cfg.pressure.max_error,
+            min_iterations: cfg.pressure.min_iterations,
+            max_iterations: cfg.pressure.max_iterations,
+            omega: cfg.pressure.omega,
+            warm_start: cfg.pressure.warm_start,
+        };
+        let (pstats, reactions) = pressure::solve(
+            &ctx,
+            &self.dens,
+            &ps,
+            &self.rho0,
+            &mut v,
+            &mut self.kappa,
+            &mut self.kappa_dt2,
+            &mut self.pwork,
+            1 + self.objects.len(),
+        );
+        for (a, vi) in v.iter_mut().enumerate().skip(nf) {
+            if fixed[a - nf] {
+                *vi = Vector3::zeros();
+            }
+        }
+        let t4 = Instant::now();
+        // Contacts with bodies, then the caller's hook (friction).
+        let contacts = contact::resolve(
+            &self.p,
+            &mut v,
+            &self.nbb,
+            &self.bnd,
+            cfg.particle_radius,
+            dt,
+        );
+        let mut forces: Vec<(Vector3<f64>, Vector3<f64>)> = reactions;
+        for c in &contacts {
+            let f = -c.normal * c.normal_force;
+            let bi = c.body as usize;
+            forces[bi].0 += f;
+            forces[bi].1 += (c.point - self.bnd.bodies[bi].state.position).cross(&f);
+        }
+        let mut stage = ContactStage {
+            particles: &self.p,
+            v: &mut v,
+            contacts: &contacts,
+            boundary: &self.bnd,
+            body_forces: &mut forces,
+            dt,
+            rest_fixed: &self.rest.fixed,
+        };
+        hook(&mut stage);
+        // Divergence guard before anything is committed.
+        let vmax = crate::par::max(v.len(), |a| v[a].norm());
+        if !vmax.is_finite() || vmax > cfg.max_velocity {
+            self.p.v = v_old;
+            self.kappa_dt2 = kappa_dt2_old;
+            let reason = if vmax.is_finite() {
+                format!(
+                    "particle speed {vmax:.3} m/s exceeds max_velocity = {} m/s",
+                    cfg.max_velocity
+                )
+            } else {
+                "non-finite particle velocity".to_string()
+            };
+            return Err(RmiError::Unstable {
+                step: self.step,
+                time: self.time,
+                max_velocity: vmax,
+                reason,
+            });
+        }
+        // 11. Advect.
+        self.p
+            .x
+            .par_iter_mut()
+            .zip(v.par_iter())
+            .for_each(|(x, vi)| *x += dt * vi);
+        self.p.v = v;
+        for (b, f) in self.bnd.bodies.iter_mut().zip(forces) {
+            b.force = f.0;
+            b.torque = f.1;
+        }
+        self.bnd.advance(dt);
+        self.time += dt;
+        self.step += 1;
+        let t5 = Instant::now();
+        self.stats = StepStats {
+            pressure: pstats,
+            cg,
+            neighbour_pairs: self.nb.pairs(),
+            contacts: contacts.len(),
+            seconds: [
+                (t1 - t0).as_secs_f64(),
+                (t2 - t1).as_secs_f64(),
+                (t3 - t2).as_secs_f64(),
+                (t4 - t3).as_secs_f64(),
+                (t5 - t4).as_secs_f64(),
+            ],
+        };
+        self.contacts = contacts;
+        Ok(())
+    }
+
+    /// Bytes held by particle data, neighbour lists and solver work arrays (approximate).
+    pub fn memory_bytes(&self) -> usize {
+        let n = self.p.len();
+        let per_particle = 24 * 2 + 8 + 2 + 4 + 8 * 6 + 24 * 2 + 24 * 6 + 8 * 4;
+        let solid = self.rest.nbr.len() * (4 + 24) + self.p.n_solid() * (24 + 8 * 2 + 72 * 3 + 32);
+        n * per_particle
+            + self.nb.bytes()
+            + self.nbb.bytes()
+            + solid
+            + self.bnd.x.len() * (24 * 3 + 8 + 2)
+    }
+
+    /// Captures the full state needed for a bit-identical continuation.
+    pub fn snapshot(&self) -> Snapshot {
+        Snapshot {
+            version: crate::snapshot::VERSION,
+            config: self.cfg.clone(),
+            time: self.time,
+            step: self.step,
+            particles: self.p.clone(),
+            rest_positions: self.rest.x0.clone(),
+            fixed: self.rest.fixed.clone(),
+            solid: self.solid.clone(),
+            kappa_dt2: self.kappa_dt2.clone(),
+            dv_prev: self.dv_prev.clone(),
+            bodies: self.bnd.bodies.iter().map(|b| b.state.clone()).collect(),
+        }
+    }
+
+    /// Restores a snapshot taken from a simulation of the same configuration.
+    pub fn restore(&mut self, s: Snapshot) -> Result<()> {
+        s.check()?;
+        let threads = self.threads;
+        let mut fresh = Simulation::new(s.config.clone(), Some(threads))?;
+        if fresh.bnd.bodies.len() != s.bodies.len() {
+            return Err(RmiError::State(format!(
+                "snapshot has {} bodies, its config {}",
+                s.bodies.len(),
+                fresh.bnd.bodies.len()
+            )));
+        }
+        let n = s.particles.len();
+        let mut rest_p = s.particles.clone();
+        rest_p.x[s.particles.n_fluid..].copy_from_slice(&s.rest_positions);
+        fresh.rest = scene::rest_data(&rest_p, &s.fixed, &fresh.kernel);
+        fresh.p = s.particles;
+        fresh.solid = s.solid;
+        fresh.kappa_dt2 = s.kappa_dt2;
+        fresh.dv_prev = s.dv_prev;
+        fresh.kappa = vec![0.0; n];
+        fresh.acc = vec![Vector3::zeros(); n];
+        for (b, st) in fresh.bnd.bodies.iter_mut().zip(s.bodies) {
+            b.state = st;
+        }
+        fresh.bnd.invalidate();
+        fresh.time = s.time;
+        fresh.step = s.step;
+        fresh.refresh_rho0();
+        *self = fresh;
+        Ok(())
+    }
+
+    /// Writes a snapshot file (atomically: temporary name, then rename).
+    pub fn save(&self, path: &std::path::Path) -> Result<()> {
+        self.snapshot().save(path)
+    }
+
+    /// Loads a snapshot file into a new simulation with `threads` workers.
+    pub fn load(path: &std::path::Path, threads: Option<usize>) -> Result<Self> {
+        let s = Snapshot::load(path)?;
+        let mut sim = Simulation::new(s.config.clone(), threads)?;
+        sim.restore(s)?;
+        Ok(sim)
+    }
+}
+
+/// What the per-step hook may touch: velocities after pressure and contact projection.
+pub struct ContactStage<'a> {
+    /// Dynamic particles (positions at the start of the step).
+    pub particles: &'a Particles,
+    /// Velocities to be integrated (m/s); modify to apply impulses.
+    pub v: &'a mut [Vector3<f64>],
+    /// Contacts found this step.
+    pub contacts: &'a [Contact],
+    /// Bodies (poses at the start of the step).
+    pub boundary: &'a Boundary,
+    /// Force and torque on each body this step (N, N m); add reactions of applied impulses.
+    pub body_forces: &'a mut [(Vector3<f64>, Vector3<f64>)],
+    /// Time step (s).
+    pub dt: f64,
+    /// Pinned skeleton particles (by solid index).
+    pub rest_fixed: &'a [bool],
+}
+
+impl ContactStage<'_> {
+    /// The state of body `i`.
+    pub fn body(&self, i: usize) -> &BodyState {
+        &self.boundary.bodies[i].state
+    }
+}
+
+impl std::fmt::Debug for Simulation {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Simulation")
+            .field("fluid", &self.p.n_fluid)
+            .field("solid", &self.p.n_solid())
+            .field("boundary", &self.bnd.x.len())
+            .field("time", &self.time)
+            .field("threads", &self.threads)
+            .finish()
+    }
+}
+
+/// Solid rest data accessor for the robot layer and tests.
+impl Simulation {
+    /// Skeleton rest data.
+    pub fn rest(&self) -> &SolidRest {
+        &self.rest
+    }
+}

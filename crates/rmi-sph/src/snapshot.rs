@@ -1,0 +1,136 @@
+//! Full-state snapshots: everything needed to continue bit-identically.
+
+use crate::boundary::BodyState;
+use crate::config::SimConfig;
+use crate::error::{Result, RmiError};
+use crate::particles::{Particles, SolidState};
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+
+/// Format version written into every snapshot.
+pub const VERSION: u32 = 1;
+const MAGIC: &[u8; 8] = b"RMISNAP\0";
+
+/// Serializable simulation state. Derived data (neighbours, rest matrices) is recomputed.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Snapshot {
+    /// Format version.
+    pub version: u32,
+    /// Configuration that built the scene.
+    pub config: SimConfig,
+    /// Simulated time (s).
+    pub time: f64,
+    /// Completed steps.
+    pub step: u64,
+    /// Dynamic particles.
+    pub particles: Particles,
+    /// Skeleton rest positions (m).
+    pub rest_positions: Vec<Vector3<f64>>,
+    /// Pinned skeleton particles.
+    pub fixed: Vec<bool>,
+    /// Skeleton rotations.
+    pub solid: SolidState,
+    /// Pressure of the last step times dt^2 (warm start and buoyancy).
+    pub kappa_dt2: Vec<f64>,
+    /// Velocity change of the last implicit solve (warm start).
+    pub dv_prev: Vec<Vector3<f64>>,
+    /// Body poses and velocities.
+    pub bodies: Vec<BodyState>,
+}
+
+impl Snapshot {
+    /// Consistency checks: lengths agree and every value is finite.
+    pub fn check(&self) -> Result<()> {
+        if self.version != VERSION {
+            return Err(RmiError::State(format!(
+                "snapshot version {} (this build reads {VERSION})",
+                self.version
+            )));
+        }
+        let p = &self.particles;
+        let n = p.x.len();
+        let ns = n
+            .checked_sub(p.n_fluid)
+            .ok_or_else(|| RmiError::State("n_fluid exceeds the particle count".into()))?;
+        for (name, len) in [
+            ("v", p.v.len()),
+            ("mass", p.mass.len()),
+            ("material", p.material.len()),
+            ("id", p.id.len()),
+            ("kappa_dt2", self.kappa_dt2.len()),
+            ("dv_prev", self.dv_prev.len()),
+        ] {
+            if len != n {
+                return Err(RmiError::State(format!(
+                    "array `{name}` has {len} entries, expected {n}"
+                )));
+            }
+        }
+        for (name, len) in [
+            ("rest_positions", self.rest_positions.len()),
+            ("fixed", self.fixed.len()),
+            ("rotation", self.solid.rotation.len()),
+        ] {
+            if len != ns {
+                return Err(RmiError::State(format!(
+                    "array `{name}` has {len} entries, expected {ns} (solid particles)"
+                )));
+            }
+        }
+        let finite = |v: &Vector3<f64>| v.iter().all(|c| c.is_finite());
+        if !p
+            .x
+            .iter()
+            .chain(&p.v)
+            .chain(&self.dv_prev)
+            .chain(&self.rest_positions)
+            .all(finite)
+            || !self.kappa_dt2.iter().all(|k| k.is_finite())
+            || !self.time.is_finite()
+        {
+            return Err(RmiError::State(
+                "snapshot contains non-finite values".into(),
+            ));
+        }
+        self.config.validate()
+    }
+
+    /// Serialises to bytes (magic header + bincode).
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut out = MAGIC.to_vec();
+        out.extend(bincode::serialize(self).expect("snapshot serialises"));
+        out
+    }
+
+    /// Parses bytes written by [`Snapshot::to_bytes`] and checks them.
+    pub fn from_bytes(b: &[u8]) -> Result<Self> {
+        if b.len() < MAGIC.len() || &b[..MAGIC.len()] != MAGIC {
+            return Err(RmiError::State("not an rmi snapshot (bad header)".into()));
+        }
+        let s: Snapshot = bincode::deserialize(&b[MAGIC.len()..])
+            .map_err(|e| RmiError::State(format!("corrupt snapshot: {e}")))?;
+        s.check()?;
+        Ok(s)
+    }
+
+    /// Writes to `path` atomically (temporary file in the same folder, then rename).
+    pub fn save(&self, path: &std::path::Path) -> Result<()> {
+        let tmp = path.with_extension(format!("tmp{}", std::process::id()));
+        let res = (|| {
+            let mut f = std::fs::File::create(&tmp)?;
+            f.write_all(&self.to_bytes())?;
+            f.sync_all()?;
+            std::fs::rename(&tmp, path)
+        })();
+        if res.is_err() {
+            let _ = std::fs::remove_file(&tmp);
+        }
+        res.map_err(RmiError::from)
+    }
+
+    /// Reads and checks a snapshot file.
+    pub fn load(path: &std::path::Path) -> Result<Self> {
+        Self::from_bytes(&std::fs::read(path)?)
+    }
+}
