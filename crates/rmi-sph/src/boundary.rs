@@ -65,9 +65,7 @@ pub struct Boundary {
 
 /// Samples the surface of a box of half extents `he` with spacing close to `d`.
 fn sample_box_surface(he: &Vector3<f64>, d: f64) -> Vec<Vector3<f64>> {
-    let n: Vec<usize> = (0..3)
-        .map(|k| ((2.0 * he[k] / d).round() as usize).max(1))
-        .collect();
+    let n: Vec<usize> = (0..3).map(|k| ((2.0 * he[k] / d).round() as usize).max(1)).collect();
     let mut pts = Vec::new();
     for i in 0..=n[0] {
         for j in 0..=n[1] {
@@ -123,9 +121,7 @@ impl Boundary {
         let mut b = Boundary::default();
         for (bi, c) in configs.iter().enumerate() {
             let he = match &c.shape {
-                Shape::Box { half_extents } | Shape::Container { half_extents } => {
-                    Vector3::from(*half_extents)
-                }
+                Shape::Box { half_extents } | Shape::Container { half_extents } => Vector3::from(*half_extents),
             };
             let pts = sample_box_surface(&he, d);
             let start = b.local.len();
@@ -239,16 +235,12 @@ mod tests {
 
     #[test]
     fn box_distance_signs() {
-        let s = Shape::Box {
-            half_extents: [1.0, 1.0, 1.0],
-        };
+        let s = Shape::Box { half_extents: [1.0, 1.0, 1.0] };
         let (d, n) = signed_distance(&s, &Vector3::new(0.0, 0.0, 1.5));
         assert!((d - 0.5).abs() < 1e-12 && (n - Vector3::z()).norm() < 1e-12);
         let (d, n) = signed_distance(&s, &Vector3::new(0.9, 0.0, 0.0));
         assert!((d + 0.1).abs() < 1e-12 && (n - Vector3::x()).norm() < 1e-12);
-        let c = Shape::Container {
-            half_extents: [1.0, 2.0, 3.0],
-        };
+        let c = Shape::Container { half_extents: [1.0, 2.0, 3.0] };
         let (d, n) = signed_distance(&c, &Vector3::new(0.0, 0.0, -2.5));
         assert!((d - 0.5).abs() < 1e-12 && (n - Vector3::z()).norm() < 1e-12);
     }
@@ -258,9 +250,7 @@ mod tests {
         let k = CubicKernel::new(0.04);
         let cfg = BodyConfig {
             name: "floor".into(),
-            shape: Shape::Box {
-                half_extents: [0.5, 0.5, 0.01],
-            },
+            shape: Shape::Box { half_extents: [0.5, 0.5, 0.01] },
             position: [0.0; 3],
             rotation: [0.0; 3],
             kinematic: false,
@@ -268,11 +258,7 @@ mod tests {
         let b = Boundary::new(&[cfg], 0.02, &k);
         // A particle in the middle of the top face: volume is a few d^3 (one layer stands in
         // for the missing half space).
-        let mid = b
-            .local
-            .iter()
-            .position(|p| p.x.abs() < 1e-9 && p.y.abs() < 1e-9 && p.z > 0.0)
-            .unwrap();
+        let mid = b.local.iter().position(|p| p.x.abs() < 1e-9 && p.y.abs() < 1e-9 && p.z > 0.0).unwrap();
         let v = b.volume[mid] / 0.02f64.powi(3);
         assert!(v > 1.0 && v < 3.0, "V/d^3 = {v}");
     }

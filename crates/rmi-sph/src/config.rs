@@ -87,6 +87,8 @@ pub struct PorousMaterial {
     /// Kinematic viscosity damping relative skeleton motion, m^2/s (explicit, like the
     /// reference scenes' solid "standard" viscosity). Zero disables it.
     pub damping: f64,
+    /// Hourglass (zero-energy mode) control strength alpha, relative to E (Ganzenmüller 2015).
+    pub hourglass: f64,
 }
 
 impl Default for PorousMaterial {
@@ -105,6 +107,7 @@ impl Default for PorousMaterial {
             softening_volume: 0.0,
             bloating: 0.0,
             damping: 0.0,
+            hourglass: 0.1,
         }
     }
 }
@@ -205,6 +208,8 @@ pub struct PressureConfig {
     pub omega: f64,
     /// Start from the previous step's pressure.
     pub warm_start: bool,
+    /// Fraction of the previous pressure the warm start uses (the reference code uses 0.5).
+    pub warm_start_factor: f64,
 }
 
 impl Default for PressureConfig {
@@ -215,6 +220,7 @@ impl Default for PressureConfig {
             max_iterations: 100,
             omega: 0.5,
             warm_start: true,
+            warm_start_factor: 0.5,
         }
     }
 }
@@ -235,12 +241,7 @@ pub struct CgConfig {
 
 impl Default for CgConfig {
     fn default() -> Self {
-        CgConfig {
-            tolerance: 1e-4,
-            max_iterations: 100,
-            preconditioner: Preconditioner::BlockJacobi,
-            warm_start: true,
-        }
+        CgConfig { tolerance: 1e-4, max_iterations: 100, preconditioner: Preconditioner::BlockJacobi, warm_start: true }
     }
 }
 
@@ -292,11 +293,7 @@ fn range(field: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<()> {
     if v.is_finite() && v >= lo && v <= hi {
         Ok(())
     } else {
-        Err(RmiError::config(
-            field,
-            v,
-            format!("a finite value in [{lo}, {hi}] {unit}"),
-        ))
+        Err(RmiError::config(field, v, format!("a finite value in [{lo}, {hi}] {unit}")))
     }
 }
 
@@ -305,11 +302,7 @@ fn open(field: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<()> {
     if v.is_finite() && v > lo && v < hi {
         Ok(())
     } else {
-        Err(RmiError::config(
-            field,
-            v,
-            format!("a finite value in ({lo}, {hi}) {unit}"),
-        ))
+        Err(RmiError::config(field, v, format!("a finite value in ({lo}, {hi}) {unit}")))
     }
 }
 
@@ -338,78 +331,19 @@ fn aabb(field: &str, min: &[f64; 3], max: &[f64; 3], d: f64) -> Result<()> {
 impl PorousMaterial {
     /// Validates every field; `p` is the dotted path used in error messages.
     pub fn validate(&self, p: &str) -> Result<()> {
-        open(
-            &format!("{p}.porosity"),
-            self.porosity,
-            0.0,
-            1.0,
-            "(dimensionless)",
-        )?;
-        range(
-            &format!("{p}.dry_density"),
-            self.dry_density,
-            1.0,
-            1e5,
-            "kg/m^3",
-        )?;
-        range(
-            &format!("{p}.youngs_modulus"),
-            self.youngs_modulus,
-            0.0,
-            1e10,
-            "Pa",
-        )?;
-        range(
-            &format!("{p}.poisson_ratio"),
-            self.poisson_ratio,
-            0.0,
-            0.49,
-            "(dimensionless)",
-        )?;
-        range(
-            &format!("{p}.permeability"),
-            self.permeability,
-            0.0,
-            1e-3,
-            "m^2",
-        )?;
+        open(&format!("{p}.porosity"), self.porosity, 0.0, 1.0, "(dimensionless)")?;
+        range(&format!("{p}.dry_density"), self.dry_density, 1.0, 1e5, "kg/m^3")?;
+        range(&format!("{p}.youngs_modulus"), self.youngs_modulus, 0.0, 1e10, "Pa")?;
+        range(&format!("{p}.poisson_ratio"), self.poisson_ratio, 0.0, 0.49, "(dimensionless)")?;
+        range(&format!("{p}.permeability"), self.permeability, 0.0, 1e-3, "m^2")?;
         range(&format!("{p}.adhesion"), self.adhesion, 0.0, 1e5, "N/m")?;
-        range(
-            &format!("{p}.adhesion_reference_spacing"),
-            self.adhesion_reference_spacing,
-            1e-5,
-            1.0,
-            "m",
-        )?;
-        range(
-            &format!("{p}.adhesion_falloff"),
-            self.adhesion_falloff,
-            0.0,
-            1.0,
-            "(dimensionless)",
-        )?;
-        range(
-            &format!("{p}.softening_shear"),
-            self.softening_shear,
-            -1.0,
-            10.0,
-            "(dimensionless)",
-        )?;
-        range(
-            &format!("{p}.softening_volume"),
-            self.softening_volume,
-            -1.0,
-            10.0,
-            "(dimensionless)",
-        )?;
-        range(
-            &format!("{p}.bloating"),
-            self.bloating,
-            0.0,
-            1.0,
-            "(dimensionless)",
-        )?;
+        range(&format!("{p}.adhesion_reference_spacing"), self.adhesion_reference_spacing, 1e-5, 1.0, "m")?;
+        range(&format!("{p}.adhesion_falloff"), self.adhesion_falloff, 0.0, 1.0, "(dimensionless)")?;
+        range(&format!("{p}.softening_shear"), self.softening_shear, -1.0, 10.0, "(dimensionless)")?;
+        range(&format!("{p}.softening_volume"), self.softening_volume, -1.0, 10.0, "(dimensionless)")?;
+        range(&format!("{p}.bloating"), self.bloating, 0.0, 1.0, "(dimensionless)")?;
         range(&format!("{p}.damping"), self.damping, 0.0, 10.0, "m^2/s")?;
+        range(&format!("{p}.hourglass"), self.hourglass, 0.0, 10.0, "(dimensionless)")?;
         Ok(())
     }
 
@@ -417,10 +351,7 @@ impl PorousMaterial {
     pub fn lame(&self) -> (f64, f64) {
         let e = self.youngs_modulus;
         let nu = self.poisson_ratio;
-        (
-            e / (2.0 * (1.0 + nu)),
-            e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)),
-        )
+        (e / (2.0 * (1.0 + nu)), e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)))
     }
 }
 
@@ -428,11 +359,7 @@ impl SimConfig {
     /// Parses a JSON document (unknown fields are rejected) and validates it.
     pub fn from_json(text: &str) -> Result<Self> {
         let cfg: SimConfig = serde_json::from_str(text).map_err(|e| {
-            RmiError::config(
-                json_path_hint(&e),
-                "(malformed)",
-                format!("valid JSON for SimConfig: {e}"),
-            )
+            RmiError::config(json_path_hint(&e), "(malformed)", format!("valid JSON for SimConfig: {e}"))
         })?;
         cfg.validate()?;
         Ok(cfg)
@@ -461,53 +388,25 @@ impl SimConfig {
         let f = &self.fluid;
         range("fluid.density", f.density, 1.0, 1e5, "kg/m^3")?;
         range("fluid.viscosity", f.viscosity, 0.0, 100.0, "m^2/s")?;
-        range(
-            "fluid.boundary_viscosity",
-            f.boundary_viscosity,
-            0.0,
-            100.0,
-            "m^2/s",
-        )?;
-        range(
-            "fluid.darcy_viscosity",
-            f.darcy_viscosity,
-            1e-6,
-            10.0,
-            "Pa s",
-        )?;
+        range("fluid.boundary_viscosity", f.boundary_viscosity, 0.0, 100.0, "m^2/s")?;
+        range("fluid.darcy_viscosity", f.darcy_viscosity, 1e-6, 10.0, "Pa s")?;
         let p = &self.pressure;
         range("pressure.max_error", p.max_error, 1e-7, 0.1, "(fraction)")?;
         range("pressure.omega", p.omega, 0.05, 1.0, "(dimensionless)")?;
+        range("pressure.warm_start_factor", p.warm_start_factor, 0.0, 1.0, "(dimensionless)")?;
         if p.max_iterations == 0 || p.max_iterations > 10_000 {
-            return Err(RmiError::config(
-                "pressure.max_iterations",
-                p.max_iterations,
-                "an integer in [1, 10000]",
-            ));
+            return Err(RmiError::config("pressure.max_iterations", p.max_iterations, "an integer in [1, 10000]"));
         }
         if p.min_iterations > p.max_iterations {
             return Err(RmiError::config(
                 "pressure.min_iterations",
                 p.min_iterations,
-                format!(
-                    "an integer in [0, pressure.max_iterations = {}]",
-                    p.max_iterations
-                ),
+                format!("an integer in [0, pressure.max_iterations = {}]", p.max_iterations),
             ));
         }
-        range(
-            "cg.tolerance",
-            self.cg.tolerance,
-            1e-14,
-            0.1,
-            "(relative residual)",
-        )?;
+        range("cg.tolerance", self.cg.tolerance, 1e-14, 0.1, "(relative residual)")?;
         if self.cg.max_iterations == 0 || self.cg.max_iterations > 10_000 {
-            return Err(RmiError::config(
-                "cg.max_iterations",
-                self.cg.max_iterations,
-                "an integer in [1, 10000]",
-            ));
+            return Err(RmiError::config("cg.max_iterations", self.cg.max_iterations, "an integer in [1, 10000]"));
         }
         range("max_velocity", self.max_velocity, 1e-3, 1e4, "m/s")?;
         let d = self.spacing();
@@ -537,13 +436,7 @@ impl SimConfig {
                 Shape::Box { half_extents } | Shape::Container { half_extents } => half_extents,
             };
             for (k, h) in he.iter().enumerate() {
-                range(
-                    &format!("{p}.shape.half_extents[{k}]"),
-                    *h,
-                    0.5 * self.particle_radius,
-                    1e3,
-                    "m",
-                )?;
+                range(&format!("{p}.shape.half_extents[{k}]"), *h, 0.5 * self.particle_radius, 1e3, "m")?;
             }
         }
         let n = self.estimated_particles();
@@ -551,9 +444,7 @@ impl SimConfig {
             return Err(RmiError::config(
                 "particle_radius",
                 self.particle_radius,
-                format!(
-                    "a radius giving at most 2e7 particles (this scene would have about {n:.3e})"
-                ),
+                format!("a radius giving at most 2e7 particles (this scene would have about {n:.3e})"),
             ));
         }
         Ok(())
@@ -563,18 +454,8 @@ impl SimConfig {
     pub fn estimated_particles(&self) -> f64 {
         let d3 = self.spacing().powi(3);
         let vol = |a: &[f64; 3], b: &[f64; 3]| (b[0] - a[0]) * (b[1] - a[1]) * (b[2] - a[2]);
-        let f: f64 = self
-            .scene
-            .fluid_blocks
-            .iter()
-            .map(|b| vol(&b.min, &b.max))
-            .sum();
-        let s: f64 = self
-            .scene
-            .porous_blocks
-            .iter()
-            .map(|b| vol(&b.min, &b.max) * (1.0 + b.material.porosity))
-            .sum();
+        let f: f64 = self.scene.fluid_blocks.iter().map(|b| vol(&b.min, &b.max)).sum();
+        let s: f64 = self.scene.porous_blocks.iter().map(|b| vol(&b.min, &b.max) * (1.0 + b.material.porosity)).sum();
         (f + s) / d3
     }
 }
@@ -605,35 +486,24 @@ mod tests {
         c.scene.porous_blocks.push(PorousBlock {
             min: [0.0; 3],
             max: [0.1; 3],
-            material: PorousMaterial {
-                porosity: 1.5,
-                ..Default::default()
-            },
+            material: PorousMaterial { porosity: 1.5, ..Default::default() },
             saturated: true,
             fixed: false,
         });
         let e = c.validate().unwrap_err().to_string();
-        assert!(
-            e.contains("scene.porous_blocks[0].material.porosity"),
-            "{e}"
-        );
+        assert!(e.contains("scene.porous_blocks[0].material.porosity"), "{e}");
         assert!(e.contains("1.5") && e.contains("(0, 1)"), "{e}");
     }
 
     #[test]
     fn unknown_field_is_rejected() {
-        let e = SimConfig::from_json(r#"{"particle_radus": 0.01}"#)
-            .unwrap_err()
-            .to_string();
+        let e = SimConfig::from_json(r#"{"particle_radus": 0.01}"#).unwrap_err().to_string();
         assert!(e.contains("particle_radus"), "{e}");
     }
 
     #[test]
     fn nan_dt_rejected() {
-        let c = SimConfig {
-            dt: f64::NAN,
-            ..Default::default()
-        };
+        let c = SimConfig { dt: f64::NAN, ..Default::default() };
         assert!(c.validate().unwrap_err().to_string().contains("`dt`"));
     }
 }

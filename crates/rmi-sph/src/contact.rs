@@ -55,11 +55,7 @@ pub fn resolve(
                 if nbl.j.is_empty() {
                     continue;
                 }
-                let target = if p.is_fluid(a) {
-                    FLUID_SKIN * radius
-                } else {
-                    radius
-                };
+                let target = if p.is_fluid(a) { FLUID_SKIN * radius } else { radius };
                 // Only bodies that have a boundary particle within the kernel can touch.
                 let mut seen = 0u64;
                 for &k in nbl.j {
@@ -94,4 +90,73 @@ pub fn resolve(
         })
         .collect();
     found.into_iter().flatten().collect()
+}
+
+/// Contact distance hysteresis: an active contact stays active while within this fraction
+/// of the radius beyond touching, so that resting contacts do not flicker.
+const HOLD_SKIN: f64 = 0.05;
+
+/// Finds skeleton particles touching or about to touch a body, one constraint each (the
+/// deepest), with the normal velocity that lands them exactly one radius from the surface.
+///
+/// `active` (by solid index) marks contacts that pushed in the previous step; they are kept
+/// while within the hold skin, and are released when they pulled.
+pub fn detect(
+    p: &Particles,
+    nbb: &NeighbourLists,
+    bnd: &Boundary,
+    radius: f64,
+    dt: f64,
+    active: &[bool],
+) -> Vec<(crate::nonpressure::VelocityConstraint, u16, Vector3<f64>)> {
+    let nf = p.n_fluid;
+    let found: Vec<Option<(crate::nonpressure::VelocityConstraint, u16, Vector3<f64>)>> = (nf..p.len())
+        .into_par_iter()
+        .map(|a| {
+            let nbl = nbb.of(a);
+            if nbl.j.is_empty() {
+                return None;
+            }
+            let mut best: Option<(f64, crate::nonpressure::VelocityConstraint, u16, Vector3<f64>)> = None;
+            let mut seen = 0u64;
+            for &k in nbl.j {
+                let bi = bnd.body[k as usize] as usize;
+                if bi >= 64 || seen & (1 << bi) != 0 {
+                    continue;
+                }
+                seen |= 1 << bi;
+                let (dist, n) = bnd.distance(bi, &p.x[a]);
+                let point = p.x[a] - dist * n;
+                let vb = bnd.point_velocity(bi, &point);
+                let gap = dist + dt * (p.v[a] - vb).dot(&n) - radius;
+                let hold = active[a - nf] && dist < radius * (1.0 + HOLD_SKIN);
+                if gap < 0.0 || hold {
+                    let target = vb.dot(&n) + (radius - dist) / dt;
+                    let con = crate::nonpressure::VelocityConstraint { particle: a as u32, normal: n, target };
+                    if best.as_ref().is_none_or(|b| dist < b.0) {
+                        best = Some((dist, con, bi as u16, point));
+                    }
+                }
+            }
+            best.map(|(_, c, b, pt)| (c, b, pt))
+        })
+        .collect();
+    found.into_iter().flatten().collect()
+}
+
+/// Merges two particle-ordered contact lists, summing the forces of the same particle-body pair.
+pub fn merge(a: Vec<Contact>, b: Vec<Contact>) -> Vec<Contact> {
+    if b.is_empty() {
+        return a;
+    }
+    let mut all: Vec<Contact> = a.into_iter().chain(b).collect();
+    all.sort_by_key(|c| (c.particle, c.body));
+    let mut out: Vec<Contact> = Vec::with_capacity(all.len());
+    for c in all {
+        match out.last_mut() {
+            Some(last) if last.particle == c.particle && last.body == c.body => last.normal_force += c.normal_force,
+            _ => out.push(c),
+        }
+    }
+    out
 }

@@ -17,6 +17,8 @@ pub struct ElasticFields {
     pub prl: Vec<Matrix3<f64>>,
     /// `G_s = R_s L_s sum_r V_r0 grad W0_sr` (for the preconditioner).
     pub gsum: Vec<Vector3<f64>>,
+    /// Full deformation gradient `sum_r V_r0 (x_r - x_s) (x) L_s grad W0_sr` (hourglass control).
+    pub ftil: Vec<Matrix3<f64>>,
 }
 
 /// Extracts the rotation of each skeleton particle (Müller et al. 2016), warm-started.
@@ -36,21 +38,12 @@ pub fn rotations(c: &Ctx, rot: &mut [UnitQuaternion<f64>]) {
 }
 
 /// Iterative rotation extraction from a deformation matrix, starting at `q`.
-pub fn extract_rotation(
-    a: &Matrix3<f64>,
-    mut q: UnitQuaternion<f64>,
-    iterations: usize,
-) -> UnitQuaternion<f64> {
+pub fn extract_rotation(a: &Matrix3<f64>, mut q: UnitQuaternion<f64>, iterations: usize) -> UnitQuaternion<f64> {
     for _ in 0..iterations {
         let r = q.to_rotation_matrix();
         let r = r.matrix();
-        let num = r.column(0).cross(&a.column(0))
-            + r.column(1).cross(&a.column(1))
-            + r.column(2).cross(&a.column(2));
-        let den = (r.column(0).dot(&a.column(0))
-            + r.column(1).dot(&a.column(1))
-            + r.column(2).dot(&a.column(2)))
-        .abs()
+        let num = r.column(0).cross(&a.column(0)) + r.column(1).cross(&a.column(1)) + r.column(2).cross(&a.column(2));
+        let den = (r.column(0).dot(&a.column(0)) + r.column(1).dot(&a.column(1)) + r.column(2).dot(&a.column(2))).abs()
             + 1e-9;
         let omega = num / den;
         let w = omega.norm();
@@ -87,20 +80,19 @@ pub fn prepare(c: &Ctx, rot: &[UnitQuaternion<f64>], saturation: &[f64], out: &m
     let rest = c.rest;
     let x = &c.p.x;
     out.rl.resize(ns, Matrix3::zeros());
-    out.rl
-        .par_iter_mut()
-        .enumerate()
-        .for_each(|(s, rl)| *rl = rot[s].to_rotation_matrix().matrix() * rest.l[s]);
+    out.rl.par_iter_mut().enumerate().for_each(|(s, rl)| *rl = rot[s].to_rotation_matrix().matrix() * rest.l[s]);
     let rl = &out.rl;
-    let rows: Vec<(Matrix3<f64>, Vector3<f64>)> = (0..ns)
+    let rows: Vec<(Matrix3<f64>, Vector3<f64>, Matrix3<f64>)> = (0..ns)
         .into_par_iter()
         .map(|s| {
             let a = nf + s;
             let rs = rot[s].to_rotation_matrix();
             let mut grad = Matrix3::zeros();
             let mut gsum = Vector3::zeros();
+            let mut ftil = Matrix3::zeros();
             for e in rest.start[s] as usize..rest.start[s + 1] as usize {
                 let r = rest.nbr[e] as usize;
+                ftil += rest.v0[r - nf] * (x[r] - x[a]) * (rest.l[s] * rest.grad0[e]).transpose();
                 let g = rl[s] * rest.grad0[e];
                 let u = (x[r] - x[a]) - rs * (rest.x0[r - nf] - rest.x0[s]);
                 grad += rest.v0[r - nf] * u * g.transpose();
@@ -110,25 +102,73 @@ pub fn prepare(c: &Ctx, rot: &[UnitQuaternion<f64>], saturation: &[f64], out: &m
             let (mu, lam) = moduli(c, a, sat);
             let o = c.object(a);
             let bloat = o.lambda * o.material.bloating * sat;
-            (stress(&grad, mu, lam, bloat) * rl[s], gsum)
+            (stress(&grad, mu, lam, bloat) * rl[s], gsum, ftil)
         })
         .collect();
     out.prl.clear();
     out.gsum.clear();
-    for (p, g) in rows {
+    out.ftil.clear();
+    for (p, g, f) in rows {
         out.prl.push(p);
         out.gsum.push(g);
+        out.ftil.push(f);
     }
 }
 
+/// Spring constant (N/m) of the hourglass control between rest neighbours s and r:
+/// `alpha E V_s0 V_r0 W0_sr / |x0_sr|^2` (Ganzenmüller 2015).
+#[inline]
+fn hourglass_k(c: &Ctx, a: usize, s: usize, r: usize) -> f64 {
+    let o = c.object(a);
+    let alpha = o.material.hourglass;
+    if alpha == 0.0 {
+        return 0.0;
+    }
+    let nf = c.p.n_fluid;
+    let rest = c.rest;
+    let d0 = rest.x0[r - nf] - rest.x0[s];
+    let dist = d0.norm();
+    alpha * o.material.youngs_modulus * rest.v0[s] * rest.v0[r - nf] * c.kernel.w(dist) / (dist * dist)
+}
+
+/// Explicit hourglass force on solid `s`: springs on the part of each rest-neighbour offset
+/// that the particle's deformation gradient does not explain (zero for affine motion).
+pub fn hourglass_force(c: &Ctx, ef: &ElasticFields, s: usize) -> Vector3<f64> {
+    let nf = c.p.n_fluid;
+    let rest = c.rest;
+    let x = &c.p.x;
+    let a = nf + s;
+    let mut f = Vector3::zeros();
+    for e in rest.start[s] as usize..rest.start[s + 1] as usize {
+        let r = rest.nbr[e] as usize;
+        let k = hourglass_k(c, a, s, r);
+        if k == 0.0 {
+            continue;
+        }
+        let d0 = rest.x0[r - nf] - rest.x0[s];
+        let es = (x[r] - x[a]) - ef.ftil[s] * d0;
+        let er = (x[a] - x[r]) + ef.ftil[r - nf] * d0;
+        f += 0.5 * k * (es - er);
+    }
+    f
+}
+
+/// Linear (velocity) part of the hourglass force for velocities `y`.
+#[inline]
+pub fn hourglass_linear(c: &Ctx, s: usize, y: &[Vector3<f64>]) -> Vector3<f64> {
+    let nf = c.p.n_fluid;
+    let rest = c.rest;
+    let a = nf + s;
+    let mut f = Vector3::zeros();
+    for e in rest.start[s] as usize..rest.start[s + 1] as usize {
+        let r = rest.nbr[e] as usize;
+        f += (hourglass_k(c, a, s, r) * c.dt) * (y[r] - y[a]);
+    }
+    f
+}
+
 /// Linearised stress term P(eps(y)) R L for velocities `y`: eps = sym(dt sum V0 (y_r - y_s) (x) g).
-pub fn linear_prl(
-    c: &Ctx,
-    ef: &ElasticFields,
-    saturation: &[f64],
-    y: &[Vector3<f64>],
-    out: &mut [Matrix3<f64>],
-) {
+pub fn linear_prl(c: &Ctx, ef: &ElasticFields, saturation: &[f64], y: &[Vector3<f64>], out: &mut [Matrix3<f64>]) {
     let nf = c.p.n_fluid;
     let rest = c.rest;
     let dt = c.dt;
@@ -174,8 +214,10 @@ pub fn diagonal_block(c: &Ctx, ef: &ElasticFields, saturation: &[f64], s: usize)
         d += vs
             * vs
             * rest.v0[r - nf]
-            * (mur * grs.norm_squared() * Matrix3::identity()
-                + (mur + lamr) * grs * grs.transpose());
+            * (mur * grs.norm_squared() * Matrix3::identity() + (mur + lamr) * grs * grs.transpose());
     }
-    d
+    // Hourglass springs: dt^2 k (y_s - y_r) per pair.
+    let ksum: f64 =
+        (rest.start[s] as usize..rest.start[s + 1] as usize).map(|e| hourglass_k(c, a, s, rest.nbr[e] as usize)).sum();
+    d + Matrix3::from_diagonal_element(ksum)
 }

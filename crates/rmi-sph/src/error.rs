@@ -40,15 +40,7 @@ pub type Result<T> = std::result::Result<T, RmiError>;
 
 impl RmiError {
     /// Builds an [`RmiError::InvalidConfig`].
-    pub fn config(
-        field: impl Into<String>,
-        value: impl ToString,
-        expected: impl Into<String>,
-    ) -> Self {
-        RmiError::InvalidConfig {
-            field: field.into(),
-            value: value.to_string(),
-            expected: expected.into(),
-        }
+    pub fn config(field: impl Into<String>, value: impl ToString, expected: impl Into<String>) -> Self {
+        RmiError::InvalidConfig { field: field.into(), value: value.to_string(), expected: expected.into() }
     }
 }

@@ -70,11 +70,7 @@ impl Grid {
         let mut c = [0usize; 3];
         for k in 0..3 {
             let f = ((p[k] - self.origin[k]) * self.inv_cell).floor();
-            c[k] = if f.is_nan() || f < 0.0 {
-                0
-            } else {
-                (f as usize).min(self.dims[k] - 1)
-            };
+            c[k] = if f.is_nan() || f < 0.0 { 0 } else { (f as usize).min(self.dims[k] - 1) };
         }
         c
     }
@@ -108,10 +104,7 @@ impl Grid {
         for z in c[2].saturating_sub(1)..=(c[2] + 1).min(self.dims[2] - 1) {
             for y in c[1].saturating_sub(1)..=(c[1] + 1).min(self.dims[1] - 1) {
                 let row = self.dims[0] * (y + self.dims[1] * z);
-                f(
-                    self.cell_start[row + x0] as usize,
-                    self.cell_start[row + x1 + 1] as usize,
-                );
+                f(self.cell_start[row + x0] as usize, self.cell_start[row + x1 + 1] as usize);
             }
         }
     }
@@ -146,9 +139,7 @@ mod tests {
         let mut s = 12345u64;
         for _ in 0..2000 {
             let mut r = || {
-                s = s
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
+                s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
                 (s >> 11) as f64 / (1u64 << 53) as f64
             };
             pts.push(Vector3::new(r(), r(), r() * 0.5));
@@ -165,9 +156,7 @@ mod tests {
                 }
             });
             found.sort();
-            let brute: Vec<usize> = (0..pts.len())
-                .filter(|&j| (pts[j] - p).norm() < h)
-                .collect();
+            let brute: Vec<usize> = (0..pts.len()).filter(|&j| (pts[j] - p).norm() < h).collect();
             assert_eq!(found, brute, "point {i}");
         }
     }

@@ -15,12 +15,7 @@ impl CubicKernel {
     /// Kernel with support radius `h` (m): `W` vanishes for `|x| >= h`.
     pub fn new(h: f64) -> Self {
         let h3 = h * h * h;
-        CubicKernel {
-            h,
-            inv_h: 1.0 / h,
-            k: 8.0 / (std::f64::consts::PI * h3),
-            l: 48.0 / (std::f64::consts::PI * h3),
-        }
+        CubicKernel { h, inv_h: 1.0 / h, k: 8.0 / (std::f64::consts::PI * h3), l: 48.0 / (std::f64::consts::PI * h3) }
     }
 
     /// Support radius in m.
@@ -107,10 +102,7 @@ mod tests {
             let e = 1e-7;
             let fd = (k.w(r + e) - k.w(r - e)) / (2.0 * e);
             let an = k.grad(&x).norm() * if k.grad_factor(r) < 0.0 { -1.0 } else { 1.0 };
-            assert!(
-                (fd - an).abs() < 1e-4 * fd.abs().max(1.0),
-                "r={r} fd={fd} an={an}"
-            );
+            assert!((fd - an).abs() < 1e-4 * fd.abs().max(1.0), "r={r} fd={fd} an={an}");
         }
         assert_eq!(k.w(0.05), 0.0);
     }

@@ -52,12 +52,7 @@ impl NeighbourLists {
         let l = a % CHUNK;
         let s = c.start[l] as usize;
         let e = c.start[l + 1] as usize;
-        Nb {
-            j: &c.j[s..e],
-            w: &c.w[s..e],
-            g: &c.g[s..e],
-            n_fluid: (c.split[l] as usize) - s,
-        }
+        Nb { j: &c.j[s..e], w: &c.w[s..e], g: &c.g[s..e], n_fluid: (c.split[l] as usize) - s }
     }
 
     /// Total number of stored pairs.

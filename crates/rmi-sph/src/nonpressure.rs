@@ -88,9 +88,7 @@ impl Op<'_> {
             return 0.0;
         }
         let sat = self.dens.saturation[s];
-        o.adhesion
-            * (1.0 - o.material.adhesion_falloff * sat)
-            * (self.c.p.mass[i] + self.c.p.mass[s])
+        o.adhesion * (1.0 - o.material.adhesion_falloff * sat) * (self.c.p.mass[i] + self.c.p.mass[s])
             / (self.rho[i] * self.phi(i) + o.material.dry_density)
             * w
     }
@@ -110,8 +108,7 @@ impl Op<'_> {
                 for k in 0..nb.n_fluid {
                     let b = nb.j[k] as usize;
                     let xab = xa - c.p.x[b];
-                    let coef = va * (c.p.mass[b] / self.rho[b]) * LAPLACE_D * mu
-                        / (xab.norm_squared() + self.eps_h);
+                    let coef = va * (c.p.mass[b] / self.rho[b]) * LAPLACE_D * mu / (xab.norm_squared() + self.eps_h);
                     f += (coef * (ya - y[b]).dot(&xab)) * nb.g[k];
                 }
             }
@@ -119,8 +116,7 @@ impl Op<'_> {
                 let s = nb.j[k] as usize;
                 let xas = xa - c.p.x[s];
                 let yas = ya - y[s];
-                f +=
-                    (self.drag(a, s) * yas.dot(&xas) / (xas.norm_squared() + self.eps_h)) * nb.g[k];
+                f += (self.drag(a, s) * yas.dot(&xas) / (xas.norm_squared() + self.eps_h)) * nb.g[k];
                 f -= (dt * self.adhesion(a, s, nb.w[k])) * yas;
             }
             if self.implicit_visc && self.s.boundary_viscosity > 0.0 {
@@ -131,8 +127,7 @@ impl Op<'_> {
                 let i = nb.j[k] as usize;
                 let xai = xa - c.p.x[i];
                 let yai = ya - y[i];
-                f +=
-                    (self.drag(i, a) * yai.dot(&xai) / (xai.norm_squared() + self.eps_h)) * nb.g[k];
+                f += (self.drag(i, a) * yai.dot(&xai) / (xai.norm_squared() + self.eps_h)) * nb.g[k];
                 f -= (dt * self.adhesion(i, a, nb.w[k])) * yai;
             }
         }
@@ -150,21 +145,15 @@ impl Op<'_> {
             let kk = nbb.j[k] as usize;
             let xak = c.p.x[a] - c.bnd.x[kk];
             let vel = if rhs { -c.bnd.v[kk] } else { q };
-            let coef = va * LAPLACE_D * mub * (c.rho0_f * c.bnd.volume[kk] / self.rho[a])
-                / (xak.norm_squared() + self.eps_h);
+            let coef =
+                va * LAPLACE_D * mub * (c.rho0_f * c.bnd.volume[kk] / self.rho[a]) / (xak.norm_squared() + self.eps_h);
             f += (coef * vel.dot(&xak)) * nbb.g[k];
         }
         f
     }
 
     /// `A y = m y - dt F_lin(y)`.
-    fn apply(
-        &self,
-        y: &[Vector3<f64>],
-        out: &mut [Vector3<f64>],
-        prl: &mut [Matrix3<f64>],
-        sat: &[f64],
-    ) {
+    fn apply(&self, y: &[Vector3<f64>], out: &mut [Vector3<f64>], prl: &mut [Matrix3<f64>], sat: &[f64]) {
         let c = self.c;
         let nf = c.p.n_fluid;
         if c.p.n_solid() > 0 {
@@ -179,7 +168,7 @@ impl Op<'_> {
             }
             let mut f = self.pair_forces(a, y);
             if a >= nf {
-                f += elasticity::force(c, a - nf, prl);
+                f += elasticity::force(c, a - nf, prl) + elasticity::hourglass_linear(c, a - nf, y);
             }
             *o = m * y[a] - c.dt * f;
         });
@@ -193,9 +182,7 @@ impl Op<'_> {
         minv.resize(c.p.len(), Matrix3::identity());
         minv.par_iter_mut().enumerate().for_each(|(a, mi)| {
             let m = c.p.mass[a];
-            if self.s.preconditioner == Preconditioner::Identity
-                || (a >= nf && c.rest.fixed[a - nf])
-            {
+            if self.s.preconditioner == Preconditioner::Identity || (a >= nf && c.rest.fixed[a - nf]) {
                 *mi = Matrix3::identity() / m;
                 return;
             }
@@ -214,10 +201,7 @@ impl Op<'_> {
                         continue;
                     }
                     let mu = self.s.viscosity * c.rho0_f;
-                    (
-                        (m / self.rho[a]) * (c.p.mass[b] / self.rho[b]) * LAPLACE_D * mu / r2,
-                        0.0,
-                    )
+                    ((m / self.rho[a]) * (c.p.mass[b] / self.rho[b]) * LAPLACE_D * mu / r2, 0.0)
                 } else if fluid {
                     (self.drag(a, b) / r2, self.adhesion(a, b, nb.w[k]))
                 } else {
@@ -228,12 +212,9 @@ impl Op<'_> {
             }
             let mut block = Matrix3::from_diagonal_element(m) - dt * jac;
             if !fluid {
-                block +=
-                    dt * dt * elasticity::diagonal_block(c, self.ef, &self.dens.saturation, a - nf);
+                block += dt * dt * elasticity::diagonal_block(c, self.ef, &self.dens.saturation, a - nf);
             }
-            *mi = block
-                .try_inverse()
-                .unwrap_or_else(|| Matrix3::identity() / m);
+            *mi = block.try_inverse().unwrap_or_else(|| Matrix3::identity() / m);
         });
     }
 }
@@ -250,8 +231,39 @@ fn dot(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
     par::sum(a.len(), |i| a[i].dot(&b[i]))
 }
 
-/// Solves for v* and writes it into `v`. `kappa_prev` (kappa of the previous step) drives
-/// buoyancy; `dv_prev` is the warm start, updated to v* - v on exit.
+/// A velocity constraint on one particle: `n . v* = target` (a skeleton-body contact).
+#[derive(Clone, Copy, Debug)]
+pub struct VelocityConstraint {
+    /// Dynamic particle index.
+    pub particle: u32,
+    /// Unit normal (from the body into the particle's side).
+    pub normal: Vector3<f64>,
+    /// Required normal velocity in m/s.
+    pub target: f64,
+}
+
+/// Per-particle constraint normal, zero where unconstrained.
+fn constraint_field(n: usize, cons: &[VelocityConstraint]) -> Vec<Vector3<f64>> {
+    let mut f = vec![Vector3::zeros(); n];
+    for c in cons {
+        f[c.particle as usize] = c.normal;
+    }
+    f
+}
+
+/// Removes constrained normal components (the filter of Baraff and Witkin's modified PCG).
+fn filter(x: &mut [Vector3<f64>], normals: &[Vector3<f64>]) {
+    x.par_iter_mut().zip(normals.par_iter()).for_each(|(xi, n)| {
+        if *n != Vector3::zeros() {
+            *xi -= n * n.dot(xi);
+        }
+    });
+}
+
+/// Solves for v* and writes it into `v`, honouring `constraints` exactly (filtered PCG).
+/// `kappa_prev` (kappa of the previous step) drives buoyancy; `gravity` (m/s^2) is part of
+/// the right-hand side so that constraints see it; `dv_prev` is the warm start, updated to
+/// v* - v on exit. Returns the statistics and the normal impulse (N s) of each constraint.
 #[allow(clippy::too_many_arguments)]
 pub fn solve(
     c: &Ctx,
@@ -259,22 +271,16 @@ pub fn solve(
     ef: &ElasticFields,
     s: &NonPressureSettings,
     kappa_prev: &[f64],
+    gravity: &Vector3<f64>,
+    constraints: &[VelocityConstraint],
     v: &mut [Vector3<f64>],
     dv_prev: &mut [Vector3<f64>],
     w: &mut CgWork,
-) -> CgStats {
+) -> (CgStats, Vec<f64>) {
     let n = c.p.len();
     let nf = c.p.n_fluid;
-    let rho: Vec<f64> = (0..n)
-        .map(|a| {
-            dens.rho_ratio[a]
-                * if a < nf {
-                    c.rho0_f
-                } else {
-                    c.object(a).material.dry_density
-                }
-        })
-        .collect();
+    let rho: Vec<f64> =
+        (0..n).map(|a| dens.rho_ratio[a] * if a < nf { c.rho0_f } else { c.object(a).material.dry_density }).collect();
     let h = c.kernel.support();
     let op = Op {
         c,
@@ -290,7 +296,7 @@ pub fn solve(
         buf.resize(n, Vector3::zeros());
     }
     w.prl.resize(c.p.n_solid(), Matrix3::zeros());
-    // Right-hand side m v + dt F_exp.
+    // Right-hand side m v + dt (F_exp + m g).
     {
         let vv: &[Vector3<f64>] = v;
         w.b.par_iter_mut().enumerate().for_each(|(a, b)| {
@@ -301,7 +307,7 @@ pub fn solve(
             }
             let nb = c.nb.of(a);
             let xa = c.p.x[a];
-            let mut f = Vector3::zeros();
+            let mut f = m * gravity;
             if a < nf {
                 for k in nb.n_fluid..nb.j.len() {
                     let sidx = nb.j[k] as usize;
@@ -318,70 +324,65 @@ pub fn solve(
                     // Buoyancy: reaction of the fluid-side skeleton pressure term (lagged).
                     f -= ((1.0 - phi) * c.vol * c.p.mass[i] * kappa_prev[i]) * nb.g[k];
                 }
-                f += elasticity::force(c, a - nf, &ef.prl);
+                f += elasticity::force(c, a - nf, &ef.prl) + elasticity::hourglass_force(c, ef, a - nf);
             }
             *b = m * vv[a] + c.dt * f;
         });
     }
     op.preconditioner(&mut w.minv);
-    // x0 = v + dv_prev; the unknown lives in `w.z` temporarily then moves to v.
-    let mut x: Vec<Vector3<f64>> = (0..n)
-        .map(|a| {
-            if s.warm_start {
-                v[a] + dv_prev[a]
-            } else {
-                v[a]
-            }
-        })
-        .collect();
+    let normals = constraint_field(n, constraints);
+    // Initial guess: warm start, with constrained normal components set to their targets.
+    let mut x: Vec<Vector3<f64>> = (0..n).map(|a| if s.warm_start { v[a] + dv_prev[a] } else { v[a] }).collect();
+    for con in constraints {
+        let xa = &mut x[con.particle as usize];
+        *xa += con.normal * (con.target - con.normal.dot(xa));
+    }
     op.apply(&x, &mut w.ap, &mut w.prl, sat);
-    w.r.par_iter_mut()
-        .enumerate()
-        .for_each(|(a, r)| *r = w.b[a] - w.ap[a]);
-    let bnorm = dot(&w.b, &w.b).sqrt().max(1e-300);
+    w.r.par_iter_mut().enumerate().for_each(|(a, r)| *r = w.b[a] - w.ap[a]);
+    filter(&mut w.r, &normals);
+    let mut bf = w.b.clone();
+    filter(&mut bf, &normals);
+    let bnorm = dot(&bf, &bf).sqrt().max(1e-300);
     let minv = &w.minv;
-    w.z.par_iter_mut()
-        .enumerate()
-        .for_each(|(a, z)| *z = minv[a] * w.r[a]);
+    w.z.par_iter_mut().enumerate().for_each(|(a, z)| *z = minv[a] * w.r[a]);
+    filter(&mut w.z, &normals);
     w.p.copy_from_slice(&w.z);
     let mut rz = dot(&w.r, &w.z);
-    let mut stats = CgStats {
-        iterations: 0,
-        residual: dot(&w.r, &w.r).sqrt() / bnorm,
-    };
+    let mut stats = CgStats { iterations: 0, residual: dot(&w.r, &w.r).sqrt() / bnorm };
     while stats.residual > s.tolerance && stats.iterations < s.max_iterations {
         op.apply(&w.p, &mut w.ap, &mut w.prl, sat);
+        filter(&mut w.ap, &normals);
         let pap = dot(&w.p, &w.ap);
         if pap <= 0.0 || !pap.is_finite() {
             break;
         }
         let alpha = rz / pap;
-        x.par_iter_mut()
-            .zip(w.p.par_iter())
-            .for_each(|(xi, pi)| *xi += alpha * pi);
-        w.r.par_iter_mut()
-            .zip(w.ap.par_iter())
-            .for_each(|(ri, api)| *ri -= alpha * api);
-        w.z.par_iter_mut()
-            .enumerate()
-            .for_each(|(a, z)| *z = minv[a] * w.r[a]);
+        x.par_iter_mut().zip(w.p.par_iter()).for_each(|(xi, pi)| *xi += alpha * pi);
+        w.r.par_iter_mut().zip(w.ap.par_iter()).for_each(|(ri, api)| *ri -= alpha * api);
+        w.z.par_iter_mut().enumerate().for_each(|(a, z)| *z = minv[a] * w.r[a]);
+        filter(&mut w.z, &normals);
         let rz_new = dot(&w.r, &w.z);
         let beta = rz_new / rz;
         rz = rz_new;
-        w.p.par_iter_mut()
-            .zip(w.z.par_iter())
-            .for_each(|(pi, zi)| *pi = zi + beta * *pi);
+        w.p.par_iter_mut().zip(w.z.par_iter()).for_each(|(pi, zi)| *pi = zi + beta * *pi);
         stats.iterations += 1;
         stats.residual = dot(&w.r, &w.r).sqrt() / bnorm;
     }
-    v.par_iter_mut()
-        .zip(dv_prev.par_iter_mut())
-        .zip(x.par_iter())
-        .for_each(|((vi, dvi), xi)| {
-            *dvi = xi - *vi;
-            *vi = *xi;
-        });
-    stats
+    // Constraint impulses: what the rows still lack, A x - b, along the normals.
+    let impulses: Vec<f64> = if constraints.is_empty() {
+        Vec::new()
+    } else {
+        op.apply(&x, &mut w.ap, &mut w.prl, sat);
+        constraints
+            .iter()
+            .map(|con| (w.ap[con.particle as usize] - w.b[con.particle as usize]).dot(&con.normal))
+            .collect()
+    };
+    v.par_iter_mut().zip(dv_prev.par_iter_mut()).zip(x.par_iter()).for_each(|((vi, dvi), xi)| {
+        *dvi = xi - *vi;
+        *vi = *xi;
+    });
+    (stats, impulses)
 }
 
 /// Explicit accelerations outside the implicit solve: SPlisHSPlasH "standard" fluid viscosity
@@ -442,4 +443,64 @@ pub fn explicit_accelerations(
             *acc += LAPLACE_D * nu * sum;
         }
     });
+}
+
+/// Drag plus adhesion force (N) on every dynamic particle for velocities `v` at the current
+/// positions (both the velocity and the position part). Pairwise equal and opposite, so the
+/// sum vanishes to round-off: a momentum-conservation diagnostic.
+pub fn coupling_forces(c: &Ctx, dens: &DensityFields, v: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+    let n = c.p.len();
+    let nf = c.p.n_fluid;
+    let rho: Vec<f64> =
+        (0..n).map(|a| dens.rho_ratio[a] * if a < nf { c.rho0_f } else { c.object(a).material.dry_density }).collect();
+    let h = c.kernel.support();
+    let s = NonPressureSettings {
+        viscosity: 0.0,
+        boundary_viscosity: 0.0,
+        viscosity_mode: ViscosityMode::Explicit,
+        tolerance: 0.0,
+        max_iterations: 0,
+        preconditioner: Preconditioner::Identity,
+        warm_start: false,
+    };
+    let ef = ElasticFields::default();
+    let op = Op { c, dens, ef: &ef, s: &s, rho, eps_h: 0.01 * h * h, implicit_visc: false };
+    (0..n)
+        .into_par_iter()
+        .map(|a| {
+            let mut f = op.pair_forces(a, v);
+            let nb = c.nb.of(a);
+            let xa = c.p.x[a];
+            if a < nf {
+                for k in nb.n_fluid..nb.j.len() {
+                    let sidx = nb.j[k] as usize;
+                    f -= op.adhesion(a, sidx, nb.w[k]) * (xa - c.p.x[sidx]);
+                }
+            } else {
+                for k in 0..nb.n_fluid {
+                    let i = nb.j[k] as usize;
+                    f -= op.adhesion(i, a, nb.w[k]) * (xa - c.p.x[i]);
+                }
+            }
+            f
+        })
+        .collect()
+}
+
+/// Buoyancy force (N) on each skeleton particle from the pressure `kappa` (physics.md 3.3).
+pub fn buoyancy_forces(c: &Ctx, kappa: &[f64]) -> Vec<Vector3<f64>> {
+    let nf = c.p.n_fluid;
+    (nf..c.p.len())
+        .into_par_iter()
+        .map(|a| {
+            let nb = c.nb.of(a);
+            let phi = c.object(a).material.porosity;
+            let mut f = Vector3::zeros();
+            for k in 0..nb.n_fluid {
+                let i = nb.j[k] as usize;
+                f -= ((1.0 - phi) * c.vol * c.p.mass[i] * kappa[i]) * nb.g[k];
+            }
+            f
+        })
+        .collect()
 }

@@ -55,7 +55,7 @@ impl Particles {
 pub struct SolidRest {
     /// Rest positions in m.
     pub x0: Vec<Vector3<f64>>,
-    /// Rest volumes V0 in m^3 (Shepard volumes from the rest configuration).
+    /// Rest volumes V0 in m^3 (the sampling volume d^3).
     pub v0: Vec<f64>,
     /// Rest Shepard sum `sum_r V W(x_s0 - x_r0)` including self (kernel coverage at rest).
     pub shepard0: Vec<f64>,

@@ -23,6 +23,8 @@ pub struct PressureSettings {
     pub omega: f64,
     /// Warm start from the previous step.
     pub warm_start: bool,
+    /// Fraction of the previous pressure used as the warm start.
+    pub warm_start_factor: f64,
 }
 
 /// What one pressure solve did.
@@ -128,9 +130,7 @@ pub fn solve(
     work.gb.resize(n, Vector3::zeros());
     work.gb.par_iter_mut().enumerate().for_each(|(a, gb)| {
         let nbb = c.nbb.of(a);
-        *gb = (0..nbb.j.len())
-            .map(|k| c.bnd.volume[nbb.j[k] as usize] * nbb.g[k])
-            .fold(Vector3::zeros(), |s, x| s + x);
+        *gb = (0..nbb.j.len()).map(|k| c.bnd.volume[nbb.j[k] as usize] * nbb.g[k]).fold(Vector3::zeros(), |s, x| s + x);
     });
     work.ap.resize(n, Vector3::zeros());
     work.err.resize(n, 0.0);
@@ -138,62 +138,37 @@ pub fn solve(
     {
         let vv: &[Vector3<f64>] = v;
         let source = &mut work.source;
-        source
-            .par_iter_mut()
-            .zip(kappa.par_iter_mut())
-            .enumerate()
-            .for_each(|(a, (s, ka))| {
-                let rho_adv = dens.rho_ratio[a] + dt * (div(c, a, vv) + boundary_div(c, a, &vv[a]));
-                *s = 1.0 - rho_adv;
-                *ka = if settings.warm_start && rho_adv > 1.0 {
-                    0.5 * kappa_dt2[a].min(2.5e-4) / dt2
-                } else {
-                    0.0
-                };
-            });
+        source.par_iter_mut().zip(kappa.par_iter_mut()).enumerate().for_each(|(a, (s, ka))| {
+            let rho_adv = dens.rho_ratio[a] + dt * (div(c, a, vv) + boundary_div(c, a, &vv[a]));
+            *s = 1.0 - rho_adv;
+            *ka = if settings.warm_start && rho_adv > 1.0 {
+                settings.warm_start_factor * kappa_dt2[a].min(2.5e-4) / dt2
+            } else {
+                0.0
+            };
+        });
     }
-    let counts: Vec<f64> = (0..n_materials)
-        .map(|m| {
-            c.p.material
-                .iter()
-                .filter(|&&x| x as usize == m)
-                .count()
-                .max(1) as f64
-        })
-        .collect();
-    let mut stats = PressureStats {
-        iterations: 0,
-        error: vec![0.0; n_materials],
-    };
+    let counts: Vec<f64> =
+        (0..n_materials).map(|m| c.p.material.iter().filter(|&&x| x as usize == m).count().max(1) as f64).collect();
+    let mut stats = PressureStats { iterations: 0, error: vec![0.0; n_materials] };
     let eta = settings.max_error;
     loop {
         {
             let kap: &[f64] = kappa;
             let gb = &work.gb;
-            work.ap
-                .par_iter_mut()
-                .enumerate()
-                .for_each(|(a, ap)| *ap = accel(c, a, kap, rho0, gb));
+            work.ap.par_iter_mut().enumerate().for_each(|(a, ap)| *ap = accel(c, a, kap, rho0, gb));
         }
         {
             let ap: &[Vector3<f64>] = &work.ap;
             let source = &work.source;
             let gb = &work.gb;
-            kappa
-                .par_iter_mut()
-                .zip(work.err.par_iter_mut())
-                .enumerate()
-                .for_each(|(a, (ka, e))| {
-                    let akappa = dt2 * (div(c, a, ap) + ap[a].dot(&gb[a]));
-                    let residual = source[a] - akappa;
-                    *e = (-residual).max(0.0);
-                    let alpha = dens.alpha[a];
-                    *ka = if alpha > 0.0 {
-                        (*ka - settings.omega * residual * alpha / dt2).max(0.0)
-                    } else {
-                        0.0
-                    };
-                });
+            kappa.par_iter_mut().zip(work.err.par_iter_mut()).enumerate().for_each(|(a, (ka, e))| {
+                let akappa = dt2 * (div(c, a, ap) + ap[a].dot(&gb[a]));
+                let residual = source[a] - akappa;
+                *e = (-residual).max(0.0);
+                let alpha = dens.alpha[a];
+                *ka = if alpha > 0.0 { (*ka - settings.omega * residual * alpha / dt2).max(0.0) } else { 0.0 };
+            });
         }
         stats.iterations += 1;
         let mut converged = true;
@@ -205,9 +180,7 @@ pub fn solve(
                 converged = false;
             }
         }
-        if (converged && stats.iterations >= settings.min_iterations)
-            || stats.iterations >= settings.max_iterations
-        {
+        if (converged && stats.iterations >= settings.min_iterations) || stats.iterations >= settings.max_iterations {
             break;
         }
     }
@@ -215,18 +188,10 @@ pub fn solve(
     {
         let kap: &[f64] = kappa;
         let gb = &work.gb;
-        work.ap
-            .par_iter_mut()
-            .enumerate()
-            .for_each(|(a, ap)| *ap = accel(c, a, kap, rho0, gb));
+        work.ap.par_iter_mut().enumerate().for_each(|(a, ap)| *ap = accel(c, a, kap, rho0, gb));
     }
-    v.par_iter_mut()
-        .zip(work.ap.par_iter())
-        .for_each(|(vi, ap)| *vi += dt * ap);
-    kappa_dt2
-        .par_iter_mut()
-        .zip(kappa.par_iter())
-        .for_each(|(kt, k)| *kt = k * dt2);
+    v.par_iter_mut().zip(work.ap.par_iter()).for_each(|(vi, ap)| *vi += dt * ap);
+    kappa_dt2.par_iter_mut().zip(kappa.par_iter()).for_each(|(kt, k)| *kt = k * dt2);
     let reactions = body_reactions(c, kappa);
     (stats, reactions)
 }

@@ -34,11 +34,7 @@ fn counts_for(min: &[f64; 3], max: &[f64; 3], spacing: f64, target: f64) -> [usi
     for mask in 0..8 {
         let mut n = [0usize; 3];
         for k in 0..3 {
-            let v = if mask & (1 << k) != 0 {
-                base[k].ceil()
-            } else {
-                base[k].floor()
-            };
+            let v = if mask & (1 << k) != 0 { base[k].ceil() } else { base[k].floor() };
             n[k] = (v as usize).max(1);
         }
         let err = ((n[0] * n[1] * n[2]) as f64 - target).abs();
@@ -76,9 +72,7 @@ pub fn build(cfg: &SimConfig, kernel: &CubicKernel) -> Built {
     };
     let mf = cfg.fluid.density * vol;
     for b in &cfg.scene.fluid_blocks {
-        let n: Vec<usize> = (0..3)
-            .map(|k| (((b.max[k] - b.min[k]) / d).round() as usize).max(1))
-            .collect();
+        let n: Vec<usize> = (0..3).map(|k| (((b.max[k] - b.min[k]) / d).round() as usize).max(1)).collect();
         for x in lattice(&b.min, &b.max, [n[0], n[1], n[2]]) {
             push(&mut p, x, Vector3::from(b.velocity), mf, FLUID);
         }
@@ -97,9 +91,7 @@ pub fn build(cfg: &SimConfig, kernel: &CubicKernel) -> Built {
     let mut fixed = Vec::new();
     for (k, b) in cfg.scene.porous_blocks.iter().enumerate() {
         let start = p.x.len();
-        let n: Vec<usize> = (0..3)
-            .map(|q| (((b.max[q] - b.min[q]) / d).round() as usize).max(1))
-            .collect();
+        let n: Vec<usize> = (0..3).map(|q| (((b.max[q] - b.min[q]) / d).round() as usize).max(1)).collect();
         let m = b.material.dry_density * vol;
         for x in lattice(&b.min, &b.max, [n[0], n[1], n[2]]) {
             push(&mut p, x, Vector3::zeros(), m, (k + 1) as u16);
@@ -117,24 +109,13 @@ pub fn build(cfg: &SimConfig, kernel: &CubicKernel) -> Built {
             ),
             adhesion: b.material.adhesion * d / b.material.adhesion_reference_spacing,
             mu,
-            lambda_trace: if cfg.elasticity_reference_trace {
-                1.0
-            } else {
-                lambda
-            },
+            lambda_trace: if cfg.elasticity_reference_trace { 1.0 } else { lambda },
             lambda,
         });
     }
     let rest = rest_data(&p, &fixed, kernel);
-    let solid_state = SolidState {
-        rotation: vec![UnitQuaternion::identity(); p.n_solid()],
-    };
-    Built {
-        particles: p,
-        rest,
-        solid_state,
-        objects,
-    }
+    let solid_state = SolidState { rotation: vec![UnitQuaternion::identity(); p.n_solid()] };
+    Built { particles: p, rest, solid_state, objects }
 }
 
 /// Computes the skeleton's rest neighbours (same object only), Shepard volumes and L.
@@ -144,11 +125,7 @@ pub fn rest_data(p: &Particles, fixed: &[bool], kernel: &CubicKernel) -> SolidRe
     let (lo, hi) = bounds(&xs, kernel.support());
     let mut g = Grid::default();
     g.build(&xs, lo, hi, kernel.support());
-    let mut rest = SolidRest {
-        x0: xs.clone(),
-        fixed: fixed.to_vec(),
-        ..Default::default()
-    };
+    let mut rest = SolidRest { x0: xs.clone(), fixed: fixed.to_vec(), ..Default::default() };
     rest.start.push(0);
     let mut shepard_w = Vec::with_capacity(xs.len());
     for (s, xa) in xs.iter().enumerate() {
@@ -179,8 +156,11 @@ pub fn rest_data(p: &Particles, fixed: &[bool], kernel: &CubicKernel) -> SolidRe
         let k = kernel.support() / 2.0;
         k * k * k
     };
-    // Rest volume V0 = m / (sum_r m_r W) = 1 / sum W (equal masses within one object).
-    rest.v0 = shepard_w.iter().map(|&s| 1.0 / s).collect();
+    // Rest volume V0 = d^3, the sampling volume. Shepard volumes (1 / sum W, the reference
+    // code's choice) grow up to 4x at faces and edges, over-weighting the surface in the
+    // elastic energy and making faces stiffer than the bulk; with the gradient correction L
+    // the deformation gradient stays exact for affine motion whatever volume is used.
+    rest.v0 = vec![d3; shepard_w.len()];
     rest.shepard0 = shepard_w.iter().map(|&s| s * d3).collect();
     rest.l = (0..xs.len())
         .map(|s| {

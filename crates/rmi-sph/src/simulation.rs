@@ -61,22 +61,18 @@ pub struct Simulation {
     pub(crate) step: u64,
     stats: StepStats,
     contacts: Vec<Contact>,
+    /// Skeleton particles whose contact pushed in the last step (contact hysteresis).
+    pub(crate) contact_active: Vec<bool>,
 }
 
 /// Default thread count: `RMI_NUM_THREADS`, else `RAYON_NUM_THREADS`, else the core count.
 pub fn default_threads() -> usize {
     for var in ["RMI_NUM_THREADS", "RAYON_NUM_THREADS"] {
-        if let Some(n) = std::env::var(var)
-            .ok()
-            .and_then(|s| s.parse::<usize>().ok())
-            .filter(|&n| n > 0)
-        {
+        if let Some(n) = std::env::var(var).ok().and_then(|s| s.parse::<usize>().ok()).filter(|&n| n > 0) {
             return n;
         }
     }
-    std::thread::available_parallelism()
-        .map(|n| n.get())
-        .unwrap_or(1)
+    std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
 }
 
 impl Simulation {
@@ -85,22 +81,12 @@ impl Simulation {
         cfg.validate()?;
         let threads = threads.unwrap_or_else(default_threads);
         if threads == 0 || threads > 1024 {
-            return Err(RmiError::config(
-                "num_threads",
-                threads,
-                "an integer in [1, 1024]",
-            ));
+            return Err(RmiError::config("num_threads", threads, "an integer in [1, 1024]"));
         }
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .build()
-            .map_err(|e| {
-                RmiError::config(
-                    "num_threads",
-                    threads,
-                    format!("a thread count the OS accepts ({e})"),
-                )
-            })?;
+            .map_err(|e| RmiError::config("num_threads", threads, format!("a thread count the OS accepts ({e})")))?;
         let kernel = CubicKernel::new(cfg.support());
         let pool = std::sync::Arc::new(pool);
         let built = pool.install(|| scene::build(&cfg, &kernel));
@@ -131,9 +117,11 @@ impl Simulation {
             step: 0,
             stats: StepStats::default(),
             contacts: Vec::new(),
+            contact_active: Vec::new(),
             cfg,
         };
         sim.refresh_rho0();
+        sim.contact_active = vec![false; sim.p.n_solid()];
         Ok(sim)
     }
 
@@ -142,15 +130,7 @@ impl Simulation {
         let objects = &self.objects;
         let f = self.cfg.fluid.density;
         self.rho0 = (0..self.p.len())
-            .map(|a| {
-                if a < nf {
-                    f
-                } else {
-                    objects[self.p.material[a] as usize - 1]
-                        .material
-                        .dry_density
-                }
-            })
+            .map(|a| if a < nf { f } else { objects[self.p.material[a] as usize - 1].material.dry_density })
             .collect();
     }
 
@@ -225,30 +205,14 @@ impl Simulation {
     }
 
     /// Sets the linear and angular velocity (m/s, rad/s) of a kinematic body.
-    pub fn set_body_velocity(
-        &mut self,
-        body: usize,
-        v: Vector3<f64>,
-        w: Vector3<f64>,
-    ) -> Result<()> {
-        let b = self
-            .bnd
-            .bodies
-            .get_mut(body)
-            .ok_or_else(|| RmiError::config("body", body, "an existing body index"))?;
+    pub fn set_body_velocity(&mut self, body: usize, v: Vector3<f64>, w: Vector3<f64>) -> Result<()> {
+        let b =
+            self.bnd.bodies.get_mut(body).ok_or_else(|| RmiError::config("body", body, "an existing body index"))?;
         if !b.kinematic {
-            return Err(RmiError::config(
-                format!("scene.bodies[{body}].kinematic"),
-                false,
-                "true to move the body",
-            ));
+            return Err(RmiError::config(format!("scene.bodies[{body}].kinematic"), false, "true to move the body"));
         }
         if !(v.iter().chain(w.iter()).all(|c| c.is_finite())) {
-            return Err(RmiError::config(
-                "body velocity",
-                format!("{v:?}"),
-                "finite components (m/s, rad/s)",
-            ));
+            return Err(RmiError::config("body velocity", format!("{v:?}"), "finite components (m/s, rad/s)"));
         }
         b.state.velocity = v;
         b.state.angular_velocity = w;
@@ -262,17 +226,10 @@ impl Simulation {
         position: Vector3<f64>,
         rotation: nalgebra::UnitQuaternion<f64>,
     ) -> Result<()> {
-        let b = self
-            .bnd
-            .bodies
-            .get_mut(body)
-            .ok_or_else(|| RmiError::config("body", body, "an existing body index"))?;
+        let b =
+            self.bnd.bodies.get_mut(body).ok_or_else(|| RmiError::config("body", body, "an existing body index"))?;
         if !b.kinematic {
-            return Err(RmiError::config(
-                format!("scene.bodies[{body}].kinematic"),
-                false,
-                "true to move the body",
-            ));
+            return Err(RmiError::config(format!("scene.bodies[{body}].kinematic"), false, "true to move the body"));
         }
         b.state.position = position;
         b.state.rotation = rotation;
@@ -327,26 +284,72 @@ impl Simulation {
         apply(&mut self.dv_prev, &perm);
     }
 
+    /// Rebuilds neighbour lists and density, porosity and saturation fields at the current
+    /// positions (what observations read). Called by every step; call it directly after
+    /// restoring or editing a state to read fields without stepping.
+    pub fn update_fields(&mut self) {
+        let pool = self.pool.clone();
+        pool.install(|| {
+            self.build_neighbours();
+            let mut dens = std::mem::take(&mut self.dens);
+            density::compute(&self.ctx(), &mut dens);
+            self.dens = dens;
+        });
+    }
+
+    fn build_neighbours(&mut self) {
+        let h = self.kernel.support();
+        self.bnd.ensure_grid(h);
+        let (lo, hi) = bounds(&self.p.x, h);
+        self.grid.build(&self.p.x, lo, hi, h);
+        self.nb.build(&self.p.x, &self.grid, &self.kernel, self.p.n_fluid, true);
+        self.nbb.build(&self.p.x, &self.bnd.grid, &self.kernel, 0, false);
+    }
+
+    fn ctx(&self) -> Ctx<'_> {
+        Ctx {
+            p: &self.p,
+            nb: &self.nb,
+            nbb: &self.nbb,
+            bnd: &self.bnd,
+            objects: &self.objects,
+            rest: &self.rest,
+            kernel: &self.kernel,
+            vol: self.cfg.spacing().powi(3),
+            dt: self.cfg.dt,
+            rho0_f: self.cfg.fluid.density,
+        }
+    }
+
+    /// Drag plus adhesion force (N) per dynamic particle at the current velocities; requires
+    /// [`Simulation::update_fields`] at the current positions. Sums to zero (momentum check).
+    pub fn coupling_forces(&mut self) -> Vec<Vector3<f64>> {
+        self.update_fields();
+        let pool = self.pool.clone();
+        pool.install(|| nonpressure::coupling_forces(&self.ctx(), &self.dens, &self.p.v))
+    }
+
+    /// Total buoyancy force (N) on porous object `k` from the last pressure solve.
+    pub fn buoyancy_force(&mut self, k: usize) -> Vector3<f64> {
+        self.update_fields();
+        let pool = self.pool.clone();
+        let f = pool.install(|| nonpressure::buoyancy_forces(&self.ctx(), &self.kappa));
+        let nf = self.p.n_fluid;
+        self.objects
+            .get(k)
+            .map_or(Vector3::zeros(), |o| o.range.clone().map(|a| f[a - nf]).fold(Vector3::zeros(), |s, x| s + x))
+    }
+
     fn step_inner<F>(&mut self, hook: F) -> Result<()>
     where
         F: FnOnce(&mut ContactStage<'_>),
     {
         let t0 = Instant::now();
-        if self.cfg.reorder_every > 0 && self.step % self.cfg.reorder_every as u64 == 0 {
-            self.reorder_fluid();
-        }
-        let cfg = &self.cfg;
-        let dt = cfg.dt;
-        let h = self.kernel.support();
+        let dt = self.cfg.dt;
         // 1. Neighbours.
-        self.bnd.ensure_grid(h);
-        let (lo, hi) = bounds(&self.p.x, h);
-        self.grid.build(&self.p.x, lo, hi, h);
-        self.nb
-            .build(&self.p.x, &self.grid, &self.kernel, self.p.n_fluid, true);
-        self.nbb
-            .build(&self.p.x, &self.bnd.grid, &self.kernel, 0, false);
+        self.build_neighbours();
         let t1 = Instant::now();
+        let cfg = &self.cfg;
         let ctx = Ctx {
             p: &self.p,
             nb: &self.nb,
@@ -363,12 +366,7 @@ impl Simulation {
         density::compute(&ctx, &mut self.dens);
         if self.p.n_solid() > 0 {
             elasticity::rotations(&ctx, &mut self.solid.rotation);
-            elasticity::prepare(
-                &ctx,
-                &self.solid.rotation,
-                &self.dens.saturation,
-                &mut self.ef,
-            );
+            elasticity::prepare(&ctx, &self.solid.rotation, &self.dens.saturation, &mut self.ef);
         }
         let t2 = Instant::now();
         // 6. Strongly coupled implicit non-pressure solve.
@@ -385,36 +383,51 @@ impl Simulation {
         let kappa_dt2_old = self.kappa_dt2.clone();
         let mut v = self.p.v.clone();
         let kappa_prev: Vec<f64> = self.kappa_dt2.iter().map(|k| k / (dt * dt)).collect();
-        let cg = if nonpressure::needed(&ctx, &nps) {
-            nonpressure::solve(
+        let g = Vector3::from(cfg.gravity);
+        // Skeleton-body contacts enter the implicit solve as velocity constraints, so that
+        // the contact force is the constraint reaction of the stiff elastic system.
+        let detected = contact::detect(&self.p, &self.nbb, &self.bnd, cfg.particle_radius, dt, &self.contact_active);
+        let implicit = nonpressure::needed(&ctx, &nps);
+        let mut contacts: Vec<Contact> = Vec::with_capacity(detected.len());
+        let cg = if implicit {
+            let cons: Vec<_> = detected.iter().map(|d| d.0).collect();
+            let (cg, impulses) = nonpressure::solve(
                 &ctx,
                 &self.dens,
                 &self.ef,
                 &nps,
                 &kappa_prev,
+                &g,
+                &cons,
                 &mut v,
                 &mut self.dv_prev,
                 &mut self.cgwork,
-            )
+            );
+            for ((con, body, point), j) in detected.iter().zip(impulses) {
+                contacts.push(Contact {
+                    particle: con.particle,
+                    body: *body,
+                    normal: con.normal,
+                    point: *point,
+                    normal_force: j / dt,
+                });
+            }
+            cg
         } else {
             CgStats::default()
         };
-        // 7-9. Explicit accelerations and gravity, then predict.
-        let g = Vector3::from(cfg.gravity);
-        self.acc.par_iter_mut().for_each(|a| *a = g);
+        // 7-9. Explicit accelerations (and gravity when there was no implicit solve), predict.
+        self.acc.par_iter_mut().for_each(|a| *a = if implicit { Vector3::zeros() } else { g });
         nonpressure::explicit_accelerations(&ctx, &self.dens, &nps, &v_old, &mut self.acc);
         let nf = self.p.n_fluid;
         let fixed = &self.rest.fixed;
-        v.par_iter_mut()
-            .zip(self.acc.par_iter())
-            .enumerate()
-            .for_each(|(a, (vi, ai))| {
-                if a >= nf && fixed[a - nf] {
-                    *vi = Vector3::zeros();
-                } else {
-                    *vi += dt * ai;
-                }
-            });
+        v.par_iter_mut().zip(self.acc.par_iter()).enumerate().for_each(|(a, (vi, ai))| {
+            if a >= nf && fixed[a - nf] {
+                *vi = Vector3::zeros();
+            } else {
+                *vi += dt * ai;
+            }
+        });
         let t3 = Instant::now();
         // 10. Pressure solve.
         let ps = PressureSettings {
@@ -423,6 +436,7 @@ impl Simulation {
             max_iterations: cfg.pressure.max_iterations,
             omega: cfg.pressure.omega,
             warm_start: cfg.pressure.warm_start,
+            warm_start_factor: cfg.pressure.warm_start_factor,
         };
         let (pstats, reactions) = pressure::solve(
             &ctx,
@@ -441,15 +455,18 @@ impl Simulation {
             }
         }
         let t4 = Instant::now();
-        // Contacts with bodies, then the caller's hook (friction).
-        let contacts = contact::resolve(
-            &self.p,
-            &mut v,
-            &self.nbb,
-            &self.bnd,
-            cfg.particle_radius,
-            dt,
-        );
+        // Safety projection (deep fluid penetration, contacts the pressure solve pushed in),
+        // merged with the constraint contacts; then the caller's hook (friction).
+        let extra = contact::resolve(&self.p, &mut v, &self.nbb, &self.bnd, cfg.particle_radius, dt);
+        contacts = contact::merge(contacts, extra);
+        for a in self.contact_active.iter_mut() {
+            *a = false;
+        }
+        for c in &contacts {
+            if c.particle as usize >= nf && c.normal_force > 0.0 {
+                self.contact_active[c.particle as usize - nf] = true;
+            }
+        }
         let mut forces: Vec<(Vector3<f64>, Vector3<f64>)> = reactions;
         for c in &contacts {
             let f = -c.normal * c.normal_force;
@@ -473,26 +490,14 @@ impl Simulation {
             self.p.v = v_old;
             self.kappa_dt2 = kappa_dt2_old;
             let reason = if vmax.is_finite() {
-                format!(
-                    "particle speed {vmax:.3} m/s exceeds max_velocity = {} m/s",
-                    cfg.max_velocity
-                )
+                format!("particle speed {vmax:.3} m/s exceeds max_velocity = {} m/s", cfg.max_velocity)
             } else {
                 "non-finite particle velocity".to_string()
             };
-            return Err(RmiError::Unstable {
-                step: self.step,
-                time: self.time,
-                max_velocity: vmax,
-                reason,
-            });
+            return Err(RmiError::Unstable { step: self.step, time: self.time, max_velocity: vmax, reason });
         }
         // 11. Advect.
-        self.p
-            .x
-            .par_iter_mut()
-            .zip(v.par_iter())
-            .for_each(|(x, vi)| *x += dt * vi);
+        self.p.x.par_iter_mut().zip(v.par_iter()).for_each(|(x, vi)| *x += dt * vi);
         self.p.v = v;
         for (b, f) in self.bnd.bodies.iter_mut().zip(forces) {
             b.force = f.0;
@@ -516,6 +521,10 @@ impl Simulation {
             ],
         };
         self.contacts = contacts;
+        // Re-sort only after a committed step, so that a failed step changes nothing.
+        if self.cfg.reorder_every > 0 && self.step % self.cfg.reorder_every as u64 == 0 {
+            self.reorder_fluid();
+        }
         Ok(())
     }
 
@@ -524,11 +533,7 @@ impl Simulation {
         let n = self.p.len();
         let per_particle = 24 * 2 + 8 + 2 + 4 + 8 * 6 + 24 * 2 + 24 * 6 + 8 * 4;
         let solid = self.rest.nbr.len() * (4 + 24) + self.p.n_solid() * (24 + 8 * 2 + 72 * 3 + 32);
-        n * per_particle
-            + self.nb.bytes()
-            + self.nbb.bytes()
-            + solid
-            + self.bnd.x.len() * (24 * 3 + 8 + 2)
+        n * per_particle + self.nb.bytes() + self.nbb.bytes() + solid + self.bnd.x.len() * (24 * 3 + 8 + 2)
     }
 
     /// Captures the full state needed for a bit-identical continuation.
@@ -544,6 +549,7 @@ impl Simulation {
             solid: self.solid.clone(),
             kappa_dt2: self.kappa_dt2.clone(),
             dv_prev: self.dv_prev.clone(),
+            contact_active: self.contact_active.clone(),
             bodies: self.bnd.bodies.iter().map(|b| b.state.clone()).collect(),
         }
     }
@@ -568,6 +574,7 @@ impl Simulation {
         fresh.solid = s.solid;
         fresh.kappa_dt2 = s.kappa_dt2;
         fresh.dv_prev = s.dv_prev;
+        fresh.contact_active = s.contact_active;
         fresh.kappa = vec![0.0; n];
         fresh.acc = vec![Vector3::zeros(); n];
         for (b, st) in fresh.bnd.bodies.iter_mut().zip(s.bodies) {

@@ -35,6 +35,8 @@ pub struct Snapshot {
     pub kappa_dt2: Vec<f64>,
     /// Velocity change of the last implicit solve (warm start).
     pub dv_prev: Vec<Vector3<f64>>,
+    /// Skeleton contacts that pushed in the last step.
+    pub contact_active: Vec<bool>,
     /// Body poses and velocities.
     pub bodies: Vec<BodyState>,
 }
@@ -43,16 +45,12 @@ impl Snapshot {
     /// Consistency checks: lengths agree and every value is finite.
     pub fn check(&self) -> Result<()> {
         if self.version != VERSION {
-            return Err(RmiError::State(format!(
-                "snapshot version {} (this build reads {VERSION})",
-                self.version
-            )));
+            return Err(RmiError::State(format!("snapshot version {} (this build reads {VERSION})", self.version)));
         }
         let p = &self.particles;
         let n = p.x.len();
-        let ns = n
-            .checked_sub(p.n_fluid)
-            .ok_or_else(|| RmiError::State("n_fluid exceeds the particle count".into()))?;
+        let ns =
+            n.checked_sub(p.n_fluid).ok_or_else(|| RmiError::State("n_fluid exceeds the particle count".into()))?;
         for (name, len) in [
             ("v", p.v.len()),
             ("mass", p.mass.len()),
@@ -62,14 +60,13 @@ impl Snapshot {
             ("dv_prev", self.dv_prev.len()),
         ] {
             if len != n {
-                return Err(RmiError::State(format!(
-                    "array `{name}` has {len} entries, expected {n}"
-                )));
+                return Err(RmiError::State(format!("array `{name}` has {len} entries, expected {n}")));
             }
         }
         for (name, len) in [
             ("rest_positions", self.rest_positions.len()),
             ("fixed", self.fixed.len()),
+            ("contact_active", self.contact_active.len()),
             ("rotation", self.solid.rotation.len()),
         ] {
             if len != ns {
@@ -79,19 +76,11 @@ impl Snapshot {
             }
         }
         let finite = |v: &Vector3<f64>| v.iter().all(|c| c.is_finite());
-        if !p
-            .x
-            .iter()
-            .chain(&p.v)
-            .chain(&self.dv_prev)
-            .chain(&self.rest_positions)
-            .all(finite)
+        if !p.x.iter().chain(&p.v).chain(&self.dv_prev).chain(&self.rest_positions).all(finite)
             || !self.kappa_dt2.iter().all(|k| k.is_finite())
             || !self.time.is_finite()
         {
-            return Err(RmiError::State(
-                "snapshot contains non-finite values".into(),
-            ));
+            return Err(RmiError::State("snapshot contains non-finite values".into()));
         }
         self.config.validate()
     }
@@ -108,8 +97,8 @@ impl Snapshot {
         if b.len() < MAGIC.len() || &b[..MAGIC.len()] != MAGIC {
             return Err(RmiError::State("not an rmi snapshot (bad header)".into()));
         }
-        let s: Snapshot = bincode::deserialize(&b[MAGIC.len()..])
-            .map_err(|e| RmiError::State(format!("corrupt snapshot: {e}")))?;
+        let s: Snapshot =
+            bincode::deserialize(&b[MAGIC.len()..]).map_err(|e| RmiError::State(format!("corrupt snapshot: {e}")))?;
         s.check()?;
         Ok(s)
     }

@@ -1,0 +1,123 @@
+//! Engine behaviour: determinism, snapshots, conservation, error handling.
+
+mod common;
+use common::*;
+use rmi_sph::config::*;
+use rmi_sph::{RmiError, Simulation};
+
+fn bits(sim: &Simulation) -> Vec<u64> {
+    let p = sim.particles();
+    p.x.iter().chain(p.v.iter()).flat_map(|v| v.iter().map(|c| c.to_bits()).collect::<Vec<_>>()).collect()
+}
+
+#[test]
+fn one_and_two_threads_are_bit_identical() {
+    let cfg = small_sponge();
+    let mut a = Simulation::new(cfg.clone(), Some(1)).unwrap();
+    let mut b = Simulation::new(cfg, Some(2)).unwrap();
+    run(&mut a, 30);
+    run(&mut b, 30);
+    assert!(a.stats().cg.iterations > 0, "the implicit solve must run in this scene");
+    assert!(bits(&a) == bits(&b), "positions or velocities differ between 1 and 2 threads");
+    assert_eq!(
+        a.kappa().iter().map(|k| k.to_bits()).collect::<Vec<_>>(),
+        b.kappa().iter().map(|k| k.to_bits()).collect::<Vec<_>>()
+    );
+}
+
+#[test]
+fn snapshot_continuation_is_bit_identical() {
+    let cfg = small_sponge();
+    let mut a = Simulation::new(cfg, Some(2)).unwrap();
+    run(&mut a, 20);
+    let dir = std::env::temp_dir().join(format!("rmi-snap-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("state.rmisnap");
+    a.save(&path).unwrap();
+    run(&mut a, 30);
+    // Another thread count on purpose: the continuation must not depend on it.
+    let mut b = Simulation::load(&path, Some(1)).unwrap();
+    assert_eq!(b.step_count(), 20);
+    run(&mut b, 30);
+    assert!(bits(&a) == bits(&b), "continuation from the snapshot differs");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn corrupt_snapshot_is_a_state_error() {
+    let dir = std::env::temp_dir().join(format!("rmi-bad-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("bad.rmisnap");
+    std::fs::write(&path, b"RMISNAP\0garbage").unwrap();
+    assert!(matches!(Simulation::load(&path, Some(1)), Err(RmiError::State(_))));
+    std::fs::write(&path, b"hello").unwrap();
+    assert!(matches!(Simulation::load(&path, Some(1)), Err(RmiError::State(_))));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn liquid_particles_and_mass_are_conserved() {
+    let mut sim = Simulation::new(small_sponge(), Some(2)).unwrap();
+    let nf = sim.particles().n_fluid;
+    let m0: f64 = sim.particles().mass[..nf].iter().sum();
+    let mut ids: Vec<u32> = sim.particles().id[..nf].to_vec();
+    run(&mut sim, 60);
+    let p = sim.particles();
+    assert_eq!(p.n_fluid, nf);
+    let m1: f64 = p.mass[..nf].iter().sum();
+    assert_eq!(m0.to_bits(), m1.to_bits());
+    let mut ids1: Vec<u32> = p.id[..nf].to_vec();
+    ids.sort();
+    ids1.sort();
+    assert_eq!(ids, ids1, "re-sorting must permute, never drop or duplicate, water");
+    assert!(p.x.iter().chain(&p.v).all(|v| v.iter().all(|c| c.is_finite())));
+}
+
+#[test]
+fn coupling_forces_conserve_momentum() {
+    let mut sim = Simulation::new(small_sponge(), Some(2)).unwrap();
+    run(&mut sim, 15);
+    let f = sim.coupling_forces();
+    let total = f.iter().fold(nalgebra::Vector3::zeros(), |s, x| s + x);
+    let scale: f64 = f.iter().map(|x| x.norm()).sum();
+    assert!(scale > 1e-6, "coupling must be active (sum |F| = {scale})");
+    assert!(total.norm() <= 1e-12 * scale, "net coupling force {total:?} vs scale {scale}");
+}
+
+#[test]
+fn divergence_stops_with_step_and_time_and_keeps_state() {
+    let mut cfg = rmi_sph::presets::water_column(0.02, 0.2, 0.2);
+    cfg.max_velocity = 0.05;
+    cfg.scene.fluid_blocks[0].velocity = [0.0, 0.0, -0.04];
+    let mut sim = Simulation::new(cfg, Some(1)).unwrap();
+    let mut failed = None;
+    for _ in 0..100 {
+        let before: Vec<u64> = bits(&sim);
+        match sim.step() {
+            Ok(_) => {}
+            Err(e) => {
+                assert!(before == bits(&sim), "a failed step must leave the state untouched");
+                failed = Some(e);
+                break;
+            }
+        }
+    }
+    match failed {
+        Some(RmiError::Unstable { step, time, max_velocity, .. }) => {
+            assert!(step > 0 && time > 0.0 && max_velocity > 0.05);
+        }
+        other => panic!("expected an Unstable error, got {other:?}"),
+    }
+}
+
+#[test]
+fn invalid_config_errors_name_the_field() {
+    let mut cfg = small_sponge();
+    cfg.scene.porous_blocks[0].material.youngs_modulus = -3.0;
+    let e = Simulation::new(cfg, Some(1)).unwrap_err().to_string();
+    assert!(e.contains("scene.porous_blocks[0].material.youngs_modulus") && e.contains("-3"), "{e}");
+    let e = Simulation::new(small_sponge(), Some(0)).unwrap_err().to_string();
+    assert!(e.contains("num_threads"), "{e}");
+    let e = SimConfig::from_json(r#"{"dt": "fast"}"#).unwrap_err().to_string();
+    assert!(e.contains("dt") || e.contains("invalid type"), "{e}");
+}

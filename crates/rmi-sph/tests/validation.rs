@@ -1,0 +1,230 @@
+//! Physics validated against analytic answers (physics.md sec. 5). Each test prints its
+//! measured error so that `cargo test -- --nocapture` gives the README's table.
+
+mod common;
+use common::*;
+use nalgebra::Vector3;
+use rmi_sph::config::*;
+use rmi_sph::Simulation;
+
+const G: f64 = 9.81;
+
+#[test]
+fn hydrostatic_column() {
+    let (r, w, h) = (0.01, 0.2, 0.4);
+    let cfg = rmi_sph::presets::water_column(r, w, h);
+    let rho0 = cfg.fluid.density;
+    let eta = cfg.pressure.max_error;
+    let mut sim = Simulation::new(cfg, Some(2)).unwrap();
+    run(&mut sim, 1200);
+    let p = sim.particles();
+    let nf = p.n_fluid;
+    let weight: f64 = p.mass[..nf].iter().sum::<f64>() * G;
+    let mut fz = 0.0;
+    let mut errs = Vec::new();
+    let mut grads = Vec::new();
+    let samples = 100;
+    for _ in 0..samples {
+        sim.step().unwrap();
+        fz += -sim.boundary().bodies[0].force.z / samples as f64;
+        errs.push(sim.stats().pressure.error[0]);
+        // Pressure profile of interior particles (p = rho0 kappa), away from walls and surface.
+        let p = sim.particles();
+        let ztop = p.x[..nf].iter().map(|x| x.z).fold(f64::MIN, f64::max);
+        let (mut z, mut pr) = (Vec::new(), Vec::new());
+        for a in 0..nf {
+            let x = p.x[a];
+            if x.x.abs() < w / 2.0 - 4.0 * r && x.y.abs() < w / 2.0 - 4.0 * r && x.z > 4.0 * r && x.z < ztop - 4.0 * r {
+                z.push(x.z);
+                pr.push(rho0 * sim.kappa()[a]);
+            }
+        }
+        grads.push(slope(&z, &pr));
+    }
+    let force_err = (fz - weight).abs() / weight;
+    let grad = mean(&grads);
+    let grad_err = (grad + rho0 * G).abs() / (rho0 * G);
+    let mean_err = mean(&errs);
+    println!("hydrostatic: floor force {fz:.2} N vs weight {weight:.2} N ({:.2} %), dp/dz {grad:.1} vs {:.1} Pa/m ({:.2} %), mean compression {:.4} %", 100.0 * force_err, -rho0 * G, 100.0 * grad_err, 100.0 * mean_err);
+    assert!(force_err < 0.02, "floor force error {force_err}");
+    assert!(grad_err < 0.05, "pressure gradient error {grad_err}");
+    assert!(mean_err <= eta, "mean compression {mean_err} above tolerance {eta}");
+}
+
+#[test]
+fn dam_break_conserves_volume_and_respects_ritter_bound() {
+    let cfg = rmi_sph::presets::dam_break(0.025);
+    let eta = cfg.pressure.max_error;
+    let max_it = cfg.pressure.max_iterations;
+    let mut sim = Simulation::new(cfg, Some(2)).unwrap();
+    let nf = sim.particles().n_fluid;
+    let h0 = sim.particles().x.iter().map(|x| x.z).fold(f64::MIN, f64::max);
+    let x0 = sim.particles().x.iter().map(|x| x.x).fold(f64::MIN, f64::max);
+    let mut worst: f64 = 0.0;
+    for _ in 0..400 {
+        sim.step().unwrap();
+        let st = sim.stats();
+        if st.pressure.iterations < max_it {
+            worst = worst.max(st.pressure.error[0]);
+        } else {
+            panic!("pressure solve hit its iteration cap at t = {}", sim.time());
+        }
+        let front = sim.particles().x.iter().map(|x| x.x).fold(f64::MIN, f64::max);
+        let ritter = x0 + 2.0 * (G * h0).sqrt() * sim.time() + 0.05;
+        assert!(front <= ritter, "front {front} beyond the Ritter bound {ritter} at t = {}", sim.time());
+    }
+    assert_eq!(sim.particles().n_fluid, nf);
+    let front = sim.particles().x.iter().map(|x| x.x).fold(f64::MIN, f64::max);
+    println!("dam break: worst converged mean compression {:.4} % (tolerance {:.3} %), front at t = 0.4 s: {:.3} m (Ritter bound {:.3} m)", 100.0 * worst, 100.0 * eta, front, x0 + 2.0 * (G * h0).sqrt() * 0.4);
+    assert!(worst <= eta);
+    assert!(front > x0 + 0.3, "the column must collapse");
+}
+
+/// Free drainage of a saturated, fixed skeleton under gravity: no pressure gradient, so
+/// Darcy gives the superficial velocity q = k rho g / mu and interstitial u = q / phi.
+#[test]
+fn darcy_drainage_matches_permeability() {
+    let r = 0.005;
+    let k_perm = 1e-9;
+    let phi = 0.6;
+    let mut cfg = SimConfig { particle_radius: r, dt: 1e-3, ..Default::default() };
+    cfg.fluid.viscosity = 1e-3;
+    let material = PorousMaterial { porosity: phi, permeability: k_perm, adhesion: 0.0, ..Default::default() };
+    cfg.scene.porous_blocks.push(PorousBlock {
+        min: [-0.04, -0.04, 0.0],
+        max: [0.04, 0.04, 0.16],
+        material,
+        saturated: true,
+        fixed: true,
+    });
+    let mu = cfg.fluid.darcy_viscosity;
+    let rho = cfg.fluid.density;
+    let mut sim = Simulation::new(cfg, Some(2)).unwrap();
+    run(&mut sim, 40);
+    let p = sim.particles();
+    let mut vz = Vec::new();
+    for a in 0..p.n_fluid {
+        let x = p.x[a];
+        if x.x.abs() < 0.02 && x.y.abs() < 0.02 && x.z > 0.04 && x.z < 0.10 {
+            vz.push(-p.v[a].z);
+        }
+    }
+    let u = mean(&vz);
+    let expected = k_perm * rho * G / (mu * phi);
+    let err = (u - expected).abs() / expected;
+    println!(
+        "darcy: interstitial speed {:.4} m/s vs {:.4} m/s ({:.1} %), {} particles sampled",
+        u,
+        expected,
+        100.0 * err,
+        vz.len()
+    );
+    // The drag constant is a lattice average with a +-20 % spread (physics.md sec. 3.1/5.3).
+    assert!(err < 0.2, "Darcy error {err}");
+}
+
+/// Uniaxial compression of a dry skeleton between frictionless plates: sigma = E eps, with
+/// eps the plate travel over the block height (the plates start at the block faces). The
+/// flag reproducing the reference code's trace term must give E_eff = 2 mu = E / (1 + nu).
+#[test]
+fn uniaxial_compression_matches_youngs_modulus() {
+    for reference_trace in [false, true] {
+        let (e_mod, nu) = (250e3, 0.3);
+        let r = 0.005;
+        let d = 2.0 * r;
+        let side = 0.06;
+        let travel: f64 = 0.002;
+        let mut cfg = SimConfig {
+            particle_radius: r,
+            dt: 1e-3,
+            gravity: [0.0; 3],
+            elasticity_reference_trace: reference_trace,
+            ..Default::default()
+        };
+        let material = PorousMaterial {
+            porosity: 0.6,
+            youngs_modulus: e_mod,
+            poisson_ratio: nu,
+            permeability: 0.0,
+            adhesion: 0.0,
+            ..Default::default()
+        };
+        cfg.scene.porous_blocks.push(PorousBlock {
+            min: [-side / 2.0, -side / 2.0, 0.0],
+            max: [side / 2.0, side / 2.0, side],
+            material,
+            saturated: false,
+            fixed: false,
+        });
+        let plate = |name: &str, z: f64, kin: bool| BodyConfig {
+            name: name.into(),
+            shape: Shape::Box { half_extents: [0.1, 0.1, d] },
+            position: [0.0, 0.0, z],
+            rotation: [0.0; 3],
+            kinematic: kin,
+        };
+        // Plate faces at the block faces z = 0 and z = side.
+        cfg.scene.bodies.push(plate("bottom", -d, false));
+        cfg.scene.bodies.push(plate("top", side + d, true));
+        let mut sim = Simulation::new(cfg, Some(2)).unwrap();
+        let top = sim.boundary().find("top").unwrap();
+        sim.set_body_velocity(top, Vector3::new(0.0, 0.0, -0.02), Vector3::zeros()).unwrap();
+        run(&mut sim, (travel / 0.02 / 1e-3).round() as usize);
+        sim.set_body_velocity(top, Vector3::zeros(), Vector3::zeros()).unwrap();
+        run(&mut sim, 200);
+        let mut f = 0.0;
+        for _ in 0..50 {
+            sim.step().unwrap();
+            f += sim.boundary().bodies[top].force.z / 50.0;
+        }
+        let eps = travel / side;
+        let e_meas = f / (side * side) / eps;
+        let expected = if reference_trace { e_mod / (1.0 + nu) } else { e_mod };
+        let err = (e_meas - expected).abs() / expected;
+        println!("uniaxial (reference trace = {reference_trace}): strain {:.4}, stress {:.0} Pa, E_measured {:.0} Pa vs {:.0} Pa ({:.1} %)", eps, f / (side * side), e_meas, expected, 100.0 * err);
+        assert!(err < 0.10, "modulus error {err}");
+    }
+}
+
+/// A fixed, fully submerged skeleton: buoyancy = (1 - phi) V_body rho_f g.
+#[test]
+fn buoyancy_of_submerged_skeleton() {
+    let r = 0.005;
+    let phi = 0.6;
+    let mut cfg = rmi_sph::presets::water_column(r, 0.14, 0.16);
+    let material = PorousMaterial { porosity: phi, adhesion: 0.0, ..Default::default() };
+    cfg.scene.porous_blocks.push(PorousBlock {
+        min: [-0.03, -0.03, 0.04],
+        max: [0.03, 0.03, 0.10],
+        material,
+        saturated: false,
+        fixed: true,
+    });
+    // Carve the block's volume out of the free water and refill it as pore water.
+    cfg.scene.fluid_blocks.clear();
+    let (w, h) = (0.07, 0.16);
+    for (min, max) in [
+        ([-w, -w, 0.0], [w, w, 0.04]),
+        ([-w, -w, 0.10], [w, w, h]),
+        ([-w, -w, 0.04], [-0.03, w, 0.10]),
+        ([0.03, -w, 0.04], [w, w, 0.10]),
+        ([-0.03, -w, 0.04], [0.03, -0.03, 0.10]),
+        ([-0.03, 0.03, 0.04], [0.03, w, 0.10]),
+    ] {
+        cfg.scene.fluid_blocks.push(FluidBlock { min, max, velocity: [0.0; 3] });
+    }
+    cfg.scene.porous_blocks[0].saturated = true;
+    let rho = cfg.fluid.density;
+    let mut sim = Simulation::new(cfg, Some(2)).unwrap();
+    run(&mut sim, 1000);
+    let mut fz = 0.0;
+    for _ in 0..50 {
+        sim.step().unwrap();
+        fz += sim.buoyancy_force(0).z / 50.0;
+    }
+    let vol = 0.06 * 0.06 * 0.06;
+    let expected = (1.0 - phi) * vol * rho * G;
+    let err = (fz - expected).abs() / expected;
+    println!("buoyancy: {:.3} N vs (1-phi) V rho g = {:.3} N ({:.1} %)", fz, expected, 100.0 * err);
+    assert!(err < 0.05, "buoyancy error {err}");
+}
