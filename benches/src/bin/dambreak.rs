@@ -33,8 +33,8 @@ fn main() {
         let st = sim.stats();
         iters += st.pressure.iterations as u64;
         err_sum += st.pressure.error[0];
-        for k in 0..5 {
-            phase[k] += st.seconds[k];
+        for (acc, sec) in phase.iter_mut().zip(st.seconds) {
+            *acc += sec;
         }
         if !json && (i + 1) % 100 == 0 {
             eprintln!(

@@ -115,20 +115,26 @@ pub fn prepare(c: &Ctx, rot: &[UnitQuaternion<f64>], saturation: &[f64], out: &m
     }
 }
 
-/// Spring constant (N/m) of the hourglass control between rest neighbours s and r:
-/// `alpha E V_s0 V_r0 W0_sr / |x0_sr|^2` (Ganzenmüller 2015).
-#[inline]
-fn hourglass_k(c: &Ctx, a: usize, s: usize, r: usize) -> f64 {
-    let o = c.object(a);
-    let alpha = o.material.hourglass;
-    if alpha == 0.0 {
-        return 0.0;
-    }
-    let nf = c.p.n_fluid;
-    let rest = c.rest;
-    let d0 = rest.x0[r - nf] - rest.x0[s];
-    let dist = d0.norm();
-    alpha * o.material.youngs_modulus * rest.v0[s] * rest.v0[r - nf] * c.kernel.w(dist) / (dist * dist)
+/// Hourglass spring constants (N/m) per rest pair: `alpha E V_s0 V_r0 W0_sr / |x0_sr|^2`
+/// (Ganzenmüller 2015); they depend only on the rest configuration.
+pub fn hourglass_constants(
+    rest: &crate::particles::SolidRest,
+    p: &crate::particles::Particles,
+    objects: &[crate::particles::PorousObject],
+    kernel: &crate::kernel::CubicKernel,
+) -> Vec<f64> {
+    let nf = p.n_fluid;
+    (0..rest.x0.len())
+        .flat_map(|s| {
+            let o = &objects[p.material[nf + s] as usize - 1];
+            (rest.start[s] as usize..rest.start[s + 1] as usize).map(move |e| {
+                let r = rest.nbr[e] as usize - nf;
+                let dist = (rest.x0[r] - rest.x0[s]).norm();
+                o.material.hourglass * o.material.youngs_modulus * rest.v0[s] * rest.v0[r] * kernel.w(dist)
+                    / (dist * dist)
+            })
+        })
+        .collect()
 }
 
 /// Explicit hourglass force on solid `s`: springs on the part of each rest-neighbour offset
@@ -141,7 +147,7 @@ pub fn hourglass_force(c: &Ctx, ef: &ElasticFields, s: usize) -> Vector3<f64> {
     let mut f = Vector3::zeros();
     for e in rest.start[s] as usize..rest.start[s + 1] as usize {
         let r = rest.nbr[e] as usize;
-        let k = hourglass_k(c, a, s, r);
+        let k = rest.hg_k[e];
         if k == 0.0 {
             continue;
         }
@@ -162,7 +168,7 @@ pub fn hourglass_linear(c: &Ctx, s: usize, y: &[Vector3<f64>]) -> Vector3<f64> {
     let mut f = Vector3::zeros();
     for e in rest.start[s] as usize..rest.start[s + 1] as usize {
         let r = rest.nbr[e] as usize;
-        f += (hourglass_k(c, a, s, r) * c.dt) * (y[r] - y[a]);
+        f += (rest.hg_k[e] * c.dt) * (y[r] - y[a]);
     }
     f
 }
@@ -217,7 +223,6 @@ pub fn diagonal_block(c: &Ctx, ef: &ElasticFields, saturation: &[f64], s: usize)
             * (mur * grs.norm_squared() * Matrix3::identity() + (mur + lamr) * grs * grs.transpose());
     }
     // Hourglass springs: dt^2 k (y_s - y_r) per pair.
-    let ksum: f64 =
-        (rest.start[s] as usize..rest.start[s + 1] as usize).map(|e| hourglass_k(c, a, s, rest.nbr[e] as usize)).sum();
+    let ksum: f64 = (rest.start[s] as usize..rest.start[s + 1] as usize).map(|e| rest.hg_k[e]).sum();
     d + Matrix3::from_diagonal_element(ksum)
 }

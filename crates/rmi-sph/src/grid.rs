@@ -11,6 +11,8 @@ pub struct Grid {
     origin: Vector3<f64>,
     inv_cell: f64,
     dims: [usize; 3],
+    /// Cells searched on each side of the query cell (cell size = support / reach).
+    reach: usize,
     /// `cell_start[c]..cell_start[c+1]` indexes `sorted_*` for cell `c`.
     cell_start: Vec<u32>,
     /// Original index of each sorted point.
@@ -24,8 +26,17 @@ pub struct Grid {
 const MAX_CELLS_PER_POINT: usize = 8;
 
 impl Grid {
-    /// Rebuilds the grid over `points` (which must lie in `[lo, hi]`) with cell size `>= h`.
+    /// Rebuilds the grid over `points` (which must lie in `[lo, hi]`) for queries of radius `h`.
     pub fn build(&mut self, points: &[Vector3<f64>], lo: Vector3<f64>, hi: Vector3<f64>, h: f64) {
+        self.build_with(points, lo, hi, h, 1);
+    }
+
+    /// As [`Grid::build`] with cells of size `h / reach`, searched `reach` cells to each side:
+    /// `reach = 2` scans a 5^3 block of half-size cells, about 40 % fewer candidates for dense
+    /// particle sets than 3^3 cells of size `h`.
+    pub fn build_with(&mut self, points: &[Vector3<f64>], lo: Vector3<f64>, hi: Vector3<f64>, h: f64, reach: usize) {
+        self.reach = reach.max(1);
+        let h = h / self.reach as f64;
         let ext = (hi - lo).map(|e| e.max(h));
         let budget = (MAX_CELLS_PER_POINT * points.len()).max(1 << 16) as f64;
         let mut cell = h;
@@ -99,10 +110,11 @@ impl Grid {
             return;
         }
         let c = self.coord(p);
-        let x0 = c[0].saturating_sub(1);
-        let x1 = (c[0] + 1).min(self.dims[0] - 1);
-        for z in c[2].saturating_sub(1)..=(c[2] + 1).min(self.dims[2] - 1) {
-            for y in c[1].saturating_sub(1)..=(c[1] + 1).min(self.dims[1] - 1) {
+        let k = self.reach;
+        let x0 = c[0].saturating_sub(k);
+        let x1 = (c[0] + k).min(self.dims[0] - 1);
+        for z in c[2].saturating_sub(k)..=(c[2] + k).min(self.dims[2] - 1) {
+            for y in c[1].saturating_sub(k)..=(c[1] + k).min(self.dims[1] - 1) {
                 let row = self.dims[0] * (y + self.dims[1] * z);
                 f(self.cell_start[row + x0] as usize, self.cell_start[row + x1 + 1] as usize);
             }

@@ -62,6 +62,21 @@ impl CubicKernel {
         self.l * self.inv_h * dw / r
     }
 
+    /// `(W(r), g(r))` in one evaluation, for `r` inside the support (see [`Self::grad_factor`]).
+    #[inline(always)]
+    pub fn w_and_grad_factor(&self, r: f64) -> (f64, f64) {
+        let q = r * self.inv_h;
+        if q <= 0.5 {
+            let g = if r < 1e-9 { 0.0 } else { self.l * self.inv_h * q * (3.0 * q - 2.0) / r };
+            (self.k * (6.0 * q * q * q - 6.0 * q * q + 1.0), g)
+        } else if q <= 1.0 {
+            let f = 1.0 - q;
+            (2.0 * self.k * f * f * f, -self.l * self.inv_h * f * f / r)
+        } else {
+            (0.0, 0.0)
+        }
+    }
+
     /// `grad W(x)` for the offset `x = x_a - x_b`.
     #[inline]
     pub fn grad(&self, x: &Vector3<f64>) -> Vector3<f64> {

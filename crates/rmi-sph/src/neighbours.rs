@@ -55,6 +55,19 @@ impl NeighbourLists {
         Nb { j: &c.j[s..e], w: &c.w[s..e], g: &c.g[s..e], n_fluid: (c.split[l] as usize) - s }
     }
 
+    /// Chunk index and the range of particle `a`'s pairs inside that chunk's arrays.
+    #[inline(always)]
+    pub fn span(&self, a: usize) -> (usize, usize, usize) {
+        let c = &self.chunks[a / CHUNK];
+        let l = a % CHUNK;
+        (a / CHUNK, c.start[l] as usize, c.start[l + 1] as usize)
+    }
+
+    /// Number of pairs stored in each chunk (to size per-pair caches).
+    pub fn chunk_pairs(&self) -> Vec<usize> {
+        self.chunks.iter().map(|c| c.j.len()).collect()
+    }
+
     /// Total number of stored pairs.
     pub fn pairs(&self) -> usize {
         self.chunks.iter().map(|c| c.j.len()).sum()
@@ -98,6 +111,11 @@ impl NeighbourLists {
             let mut solid: Vec<(u32, f64, Vector3<f64>)> = Vec::with_capacity(64);
             let lo = ci * CHUNK;
             let hi = (lo + CHUNK).min(queries.len());
+            // Typical lists hold ~35-60 pairs; reserving avoids growth during the scan.
+            let want = (hi - lo) * 64;
+            ch.j.reserve(want);
+            ch.w.reserve(want);
+            ch.g.reserve(want);
             for a in lo..hi {
                 let xa = queries[a];
                 ch.start.push(ch.j.len() as u32);
@@ -111,9 +129,8 @@ impl NeighbourLists {
                         if r2 >= h2 || (exclude_self && b as usize == a) {
                             continue;
                         }
-                        let r = r2.sqrt();
-                        let w = kernel.w(r);
-                        let g = d * kernel.grad_factor(r);
+                        let (w, gf) = kernel.w_and_grad_factor(r2.sqrt());
+                        let g = d * gf;
                         if (b as usize) < n_fluid_targets {
                             ch.j.push(b);
                             ch.w.push(w);

@@ -65,6 +65,9 @@ struct Op<'a> {
     rho: Vec<f64>,
     eps_h: f64,
     implicit_visc: bool,
+    /// Per pair (aligned with the neighbour chunks): [Laplacian coefficient / (|x|^2 + eps),
+    /// adhesion coefficient c_is]; the Laplacian one is viscosity (fluid-fluid) or drag.
+    coef: Vec<Vec<[f64; 2]>>,
 }
 
 impl Op<'_> {
@@ -93,43 +96,76 @@ impl Op<'_> {
             * w
     }
 
+    /// Fills the per-pair coefficient cache (once per step; the operator runs every CG pass).
+    fn fill_coefficients(&mut self) {
+        let c = self.c;
+        let sizes = c.nb.chunk_pairs();
+        let n = c.p.len();
+        let mut coef: Vec<Vec<[f64; 2]>> = sizes.iter().map(|&m| vec![[0.0; 2]; m]).collect();
+        let this: &Op = self;
+        coef.par_iter_mut().enumerate().for_each(|(ci, out)| {
+            let lo = ci * crate::neighbours::CHUNK;
+            for a in lo..(lo + crate::neighbours::CHUNK).min(n) {
+                let (_, start, _) = c.nb.span(a);
+                let nb = c.nb.of(a);
+                let xa = c.p.x[a];
+                for k in 0..nb.j.len() {
+                    let b = nb.j[k] as usize;
+                    let r2 = (xa - c.p.x[b]).norm_squared() + this.eps_h;
+                    out[start + k] = match (a < c.p.n_fluid, k < nb.n_fluid) {
+                        (true, true) if this.implicit_visc => {
+                            let mu = this.s.viscosity * c.rho0_f;
+                            [(c.p.mass[a] / this.rho[a]) * (c.p.mass[b] / this.rho[b]) * LAPLACE_D * mu / r2, 0.0]
+                        }
+                        (true, false) => [this.drag(a, b) / r2, this.adhesion(a, b, nb.w[k])],
+                        (false, true) => [this.drag(b, a) / r2, this.adhesion(b, a, nb.w[k])],
+                        _ => [0.0, 0.0],
+                    };
+                }
+            }
+        });
+        self.coef = coef;
+    }
+
+    /// Cached pair coefficients of particle `a`.
+    #[inline(always)]
+    fn coefs(&self, a: usize) -> &[[f64; 2]] {
+        let (ci, s, e) = self.c.nb.span(a);
+        &self.coef[ci][s..e]
+    }
+
     /// `F_lin(y)` at particle a (without elasticity, which needs the PRL pass).
     fn pair_forces(&self, a: usize, y: &[Vector3<f64>]) -> Vector3<f64> {
         let c = self.c;
         let nb = c.nb.of(a);
+        let cf = self.coefs(a);
         let xa = c.p.x[a];
         let ya = y[a];
         let dt = c.dt;
         let mut f = Vector3::zeros();
-        if c.p.is_fluid(a) {
+        let fluid = c.p.is_fluid(a);
+        // Fluid centre: fluid pairs carry viscosity (if implicit), solid pairs drag + adhesion.
+        // Solid centre: only fluid pairs carry drag + adhesion.
+        let range = if fluid {
             if self.implicit_visc {
-                let mu = self.s.viscosity * c.rho0_f;
-                let va = c.p.mass[a] / self.rho[a];
-                for k in 0..nb.n_fluid {
-                    let b = nb.j[k] as usize;
-                    let xab = xa - c.p.x[b];
-                    let coef = va * (c.p.mass[b] / self.rho[b]) * LAPLACE_D * mu / (xab.norm_squared() + self.eps_h);
-                    f += (coef * (ya - y[b]).dot(&xab)) * nb.g[k];
-                }
-            }
-            for k in nb.n_fluid..nb.j.len() {
-                let s = nb.j[k] as usize;
-                let xas = xa - c.p.x[s];
-                let yas = ya - y[s];
-                f += (self.drag(a, s) * yas.dot(&xas) / (xas.norm_squared() + self.eps_h)) * nb.g[k];
-                f -= (dt * self.adhesion(a, s, nb.w[k])) * yas;
-            }
-            if self.implicit_visc && self.s.boundary_viscosity > 0.0 {
-                f += self.boundary_visc(a, ya, false);
+                0..nb.j.len()
+            } else {
+                nb.n_fluid..nb.j.len()
             }
         } else {
-            for k in 0..nb.n_fluid {
-                let i = nb.j[k] as usize;
-                let xai = xa - c.p.x[i];
-                let yai = ya - y[i];
-                f += (self.drag(i, a) * yai.dot(&xai) / (xai.norm_squared() + self.eps_h)) * nb.g[k];
-                f -= (dt * self.adhesion(i, a, nb.w[k])) * yai;
+            0..nb.n_fluid
+        };
+        for k in range {
+            let b = nb.j[k] as usize;
+            let yab = ya - y[b];
+            let [lap, adh] = cf[k];
+            f += (lap * yab.dot(&(xa - c.p.x[b]))) * nb.g[k];
+            if adh != 0.0 {
+                f -= (dt * adh) * yab;
             }
+        }
+        if fluid && self.implicit_visc && self.s.boundary_viscosity > 0.0 {
+            f += self.boundary_visc(a, ya, false);
         }
         f
     }
@@ -290,7 +326,11 @@ pub fn solve(
         rho,
         eps_h: 0.01 * h * h,
         implicit_visc: s.viscosity_mode == ViscosityMode::Implicit && s.viscosity > 0.0,
+        coef: Vec::new(),
     };
+    let mut op = op;
+    op.fill_coefficients();
+    let op = op;
     let sat = &dens.saturation;
     for buf in [&mut w.r, &mut w.z, &mut w.p, &mut w.ap, &mut w.b] {
         buf.resize(n, Vector3::zeros());
@@ -464,7 +504,8 @@ pub fn coupling_forces(c: &Ctx, dens: &DensityFields, v: &[Vector3<f64>]) -> Vec
         warm_start: false,
     };
     let ef = ElasticFields::default();
-    let op = Op { c, dens, ef: &ef, s: &s, rho, eps_h: 0.01 * h * h, implicit_visc: false };
+    let mut op = Op { c, dens, ef: &ef, s: &s, rho, eps_h: 0.01 * h * h, implicit_visc: false, coef: Vec::new() };
+    op.fill_coefficients();
     (0..n)
         .into_par_iter()
         .map(|a| {

@@ -69,6 +69,8 @@ pub struct SolidRest {
     pub grad0: Vec<Vector3<f64>>,
     /// Pinned particles (never integrated).
     pub fixed: Vec<bool>,
+    /// Hourglass spring constant (N/m) per rest pair, constant over a run.
+    pub hg_k: Vec<f64>,
 }
 
 /// Per-solid state that evolves and must be saved for bit-identical continuation.

@@ -10,6 +10,9 @@ use crate::par;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
+/// Force (N) and torque about the body centre (N m) on one body.
+pub type BodyLoad = (Vector3<f64>, Vector3<f64>);
+
 /// Solver settings resolved from the config.
 #[derive(Clone, Copy, Debug)]
 pub struct PressureSettings {
@@ -122,7 +125,7 @@ pub fn solve(
     kappa_dt2: &mut [f64],
     work: &mut PressureWork,
     n_materials: usize,
-) -> (PressureStats, Vec<(Vector3<f64>, Vector3<f64>)>) {
+) -> (PressureStats, Vec<BodyLoad>) {
     let n = c.p.len();
     let dt = c.dt;
     let dt2 = dt * dt;

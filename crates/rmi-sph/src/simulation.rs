@@ -122,6 +122,7 @@ impl Simulation {
         };
         sim.refresh_rho0();
         sim.contact_active = vec![false; sim.p.n_solid()];
+        sim.rest.hg_k = elasticity::hourglass_constants(&sim.rest, &sim.p, &sim.objects, &sim.kernel);
         Ok(sim)
     }
 
@@ -301,7 +302,7 @@ impl Simulation {
         let h = self.kernel.support();
         self.bnd.ensure_grid(h);
         let (lo, hi) = bounds(&self.p.x, h);
-        self.grid.build(&self.p.x, lo, hi, h);
+        self.grid.build_with(&self.p.x, lo, hi, h, 2);
         self.nb.build(&self.p.x, &self.grid, &self.kernel, self.p.n_fluid, true);
         self.nbb.build(&self.p.x, &self.bnd.grid, &self.kernel, 0, false);
     }
@@ -522,7 +523,7 @@ impl Simulation {
         };
         self.contacts = contacts;
         // Re-sort only after a committed step, so that a failed step changes nothing.
-        if self.cfg.reorder_every > 0 && self.step % self.cfg.reorder_every as u64 == 0 {
+        if self.cfg.reorder_every > 0 && self.step.is_multiple_of(self.cfg.reorder_every as u64) {
             self.reorder_fluid();
         }
         Ok(())
@@ -570,6 +571,7 @@ impl Simulation {
         let mut rest_p = s.particles.clone();
         rest_p.x[s.particles.n_fluid..].copy_from_slice(&s.rest_positions);
         fresh.rest = scene::rest_data(&rest_p, &s.fixed, &fresh.kernel);
+        fresh.rest.hg_k = elasticity::hourglass_constants(&fresh.rest, &rest_p, &fresh.objects, &fresh.kernel);
         fresh.p = s.particles;
         fresh.solid = s.solid;
         fresh.kappa_dt2 = s.kappa_dt2;

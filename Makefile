@@ -1,0 +1,62 @@
+# Developer entry points. `make test` is the full check CI runs (see .ci/run).
+#
+# `make setup` keeps a virtual environment in .venv with the test tools and the package itself
+# (built in release mode by maturin). Stamp files inside .venv make re-runs cheap: the tools are
+# reinstalled only when pyproject.toml (or this file) changes, the native module is rebuilt only
+# when a Rust source or manifest changes. Delete .venv to start over.
+
+PYTHON ?= python3
+VENV := .venv
+VENV_PY := $(VENV)/bin/python
+TOOLS_STAMP := $(VENV)/.tools-stamp
+BUILD_STAMP := $(VENV)/.build-stamp
+
+# Everything the native module is built from (the binding crate and the core it links).
+RUST_INPUTS := Cargo.toml Cargo.lock $(shell find crates -name '*.rs' -o -name Cargo.toml)
+
+# pyo3's build script picks an interpreter from PYO3_PYTHON; pointing cargo (clippy included)
+# and maturin at the same one lets them share build results instead of rebuilding pyo3.
+export PYO3_PYTHON := $(abspath $(VENV_PY))
+export PIP_DISABLE_PIP_VERSION_CHECK := 1
+
+.PHONY: setup test test-rust test-python demo lint bench clean
+
+setup: $(BUILD_STAMP)
+
+$(VENV_PY):
+	$(PYTHON) -m venv $(VENV)
+
+$(TOOLS_STAMP): pyproject.toml Makefile | $(VENV_PY)
+	$(VENV_PY) -m pip install --upgrade pip
+	$(VENV_PY) -m pip install 'maturin>=1.9.4,<2' pytest hypothesis 'numpy>=2' ruff mypy
+	touch $@
+
+# `maturin develop` installs the runtime dependencies, copies the extension module into
+# python/rmi_sph/ and points the venv at python/ so edits to .py files need no reinstall.
+$(BUILD_STAMP): $(TOOLS_STAMP) $(RUST_INPUTS) pyproject.toml
+	VIRTUAL_ENV=$(abspath $(VENV)) $(VENV)/bin/maturin develop --release
+	touch $@
+
+test: setup test-rust test-python
+
+# The workspace's default members leave out the binding, so this needs no Python.
+test-rust:
+	cargo test --release
+
+test-python: setup
+	$(VENV_PY) -m pytest -q tests
+
+demo: setup
+	cargo run --release -p rmi-benches --bin demo
+
+lint: setup
+	cargo fmt --all -- --check
+	cargo clippy --workspace --all-targets -- -D warnings
+	$(VENV)/bin/ruff check python tests benches
+
+# Rust benchmarks only; benches/compare_splishsplash.py needs pysplishsplash (see its docstring).
+bench:
+	cargo bench
+
+clean:
+	rm -rf $(VENV) python/rmi_sph/_rmi_sph*.so python/rmi_sph/_rmi_sph*.pyd
