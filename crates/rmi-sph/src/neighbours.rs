@@ -111,11 +111,6 @@ impl NeighbourLists {
             let mut solid: Vec<(u32, f64, Vector3<f64>)> = Vec::with_capacity(64);
             let lo = ci * CHUNK;
             let hi = (lo + CHUNK).min(queries.len());
-            // Typical lists hold ~35-60 pairs; reserving avoids growth during the scan.
-            let want = (hi - lo) * 64;
-            ch.j.reserve(want);
-            ch.w.reserve(want);
-            ch.g.reserve(want);
             for a in lo..hi {
                 let xa = queries[a];
                 ch.start.push(ch.j.len() as u32);
