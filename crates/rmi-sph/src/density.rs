@@ -55,7 +55,10 @@ pub fn compute(c: &Ctx, out: &mut DensityFields) {
             }
         }
         let mut bcover = 0.0;
-        for k in 0..nbb.j.len() {
+        // Bodies act on the skeleton only through contact constraints (contact.rs): boundary
+        // density under a compressible skeleton would make it float on pressure instead.
+        let nbb_len = if fluid { nbb.j.len() } else { 0 };
+        for k in 0..nbb_len {
             let vk = c.bnd.volume[nbb.j[k] as usize];
             dens += vk * nbb.w[k];
             bcover += vk * nbb.w[k];

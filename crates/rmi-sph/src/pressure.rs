@@ -67,9 +67,11 @@ fn accel(c: &Ctx, a: usize, kappa: &[f64], rho0: &[f64], gb: &[Vector3<f64>]) ->
     } else {
         for k in nb.n_fluid..nb.j.len() {
             let b = nb.j[k] as usize;
+            // One symmetric factor: the reference's extra f(b <- a) on kappa_b makes the pair
+            // forces of a compressible skeleton unequal (net force V^2 f (1 - f) grad W
+            // (rho0 kappa_b - rho0 kappa_a)), which pushed resting sponges into the floor.
             let f_ab = c.volume_factor(a, b);
-            let f_ba = c.volume_factor(b, a);
-            acc -= (f_ab * v * (ka + f_ba * rho0[b] / rho0[a] * kappa[b])) * nb.g[k];
+            acc -= (f_ab * v * (ka + rho0[b] / rho0[a] * kappa[b])) * nb.g[k];
         }
     }
     acc - ka * gb[a]
@@ -101,6 +103,9 @@ fn div(c: &Ctx, a: usize, q: &[Vector3<f64>]) -> f64 {
 
 /// Boundary part of the velocity divergence, `sum_k V_k (v_a - v_k) . grad W_ak`.
 fn boundary_div(c: &Ctx, a: usize, va: &Vector3<f64>) -> f64 {
+    if !c.p.is_fluid(a) {
+        return 0.0;
+    }
     let nbb = c.nbb.of(a);
     let mut s = 0.0;
     for k in 0..nbb.j.len() {
@@ -132,6 +137,11 @@ pub fn solve(
     work.source.resize(n, 0.0);
     work.gb.resize(n, Vector3::zeros());
     work.gb.par_iter_mut().enumerate().for_each(|(a, gb)| {
+        // Only water feels boundary pressure; the skeleton meets bodies through contacts.
+        if !c.p.is_fluid(a) {
+            *gb = Vector3::zeros();
+            return;
+        }
         let nbb = c.nbb.of(a);
         *gb = (0..nbb.j.len()).map(|k| c.bnd.volume[nbb.j[k] as usize] * nbb.g[k]).fold(Vector3::zeros(), |s, x| s + x);
     });
@@ -209,7 +219,7 @@ fn body_reactions(c: &Ctx, kappa: &[f64]) -> Vec<(Vector3<f64>, Vector3<f64>)> {
         .map(|ci| {
             let mut acc = vec![(Vector3::zeros(), Vector3::zeros()); nbody];
             for a in ci * chunk..((ci + 1) * chunk).min(n) {
-                if kappa[a] == 0.0 {
+                if kappa[a] == 0.0 || !c.p.is_fluid(a) {
                     continue;
                 }
                 let nbb = c.nbb.of(a);

@@ -123,67 +123,88 @@ fn darcy_drainage_matches_permeability() {
     assert!(err < 0.2, "Darcy error {err}");
 }
 
-/// Uniaxial compression of a dry skeleton between frictionless plates: sigma = E eps, with
-/// eps the plate travel over the block height (the plates start at the block faces). The
-/// flag reproducing the reference code's trace term must give E_eff = 2 mu = E / (1 + nu).
+/// Measured Young's modulus (Pa) of a dry 6 cm cube compressed 2 mm between frictionless
+/// plates whose faces start at the cube's faces. The strain is the travel over the height of
+/// the particle lattice (L - d): contacts hold the end layers one radius from each plate.
+fn uniaxial_modulus(r: f64, e_mod: f64, nu: f64, reference_trace: bool) -> f64 {
+    let d = 2.0 * r;
+    let side = 0.06;
+    let travel: f64 = 0.002;
+    let mut cfg = SimConfig {
+        particle_radius: r,
+        dt: 1e-3,
+        gravity: [0.0; 3],
+        elasticity_reference_trace: reference_trace,
+        ..Default::default()
+    };
+    let material = PorousMaterial {
+        porosity: 0.6,
+        youngs_modulus: e_mod,
+        poisson_ratio: nu,
+        permeability: 0.0,
+        adhesion: 0.0,
+        ..Default::default()
+    };
+    cfg.scene.porous_blocks.push(PorousBlock {
+        min: [-side / 2.0, -side / 2.0, 0.0],
+        max: [side / 2.0, side / 2.0, side],
+        material,
+        saturated: false,
+        fixed: false,
+    });
+    let plate = |name: &str, z: f64, kin: bool| BodyConfig {
+        name: name.into(),
+        shape: Shape::Box { half_extents: [0.1, 0.1, d] },
+        position: [0.0, 0.0, z],
+        rotation: [0.0; 3],
+        kinematic: kin,
+    };
+    cfg.scene.bodies.push(plate("bottom", -d, false));
+    cfg.scene.bodies.push(plate("top", side + d, true));
+    let mut sim = Simulation::new(cfg, Some(2)).unwrap();
+    let top = sim.boundary().find("top").unwrap();
+    sim.set_body_velocity(top, Vector3::new(0.0, 0.0, -0.02), Vector3::zeros()).unwrap();
+    run(&mut sim, (travel / 0.02 / 1e-3).round() as usize);
+    sim.set_body_velocity(top, Vector3::zeros(), Vector3::zeros()).unwrap();
+    run(&mut sim, 200);
+    let mut f = 0.0;
+    for _ in 0..50 {
+        sim.step().unwrap();
+        f += sim.boundary().bodies[top].force.z / 50.0;
+    }
+    let face_particles = ((side / d).round() as usize).pow(2);
+    let touching = sim.contacts().iter().filter(|c| c.body as usize == top).count();
+    assert_eq!(touching, face_particles, "every particle of the top face must touch the plate");
+    f / (side * side) / (travel / (side - d))
+}
+
+/// Uniaxial compression between frictionless plates converges to sigma = E eps under
+/// refinement; the reference-code flag gives E_eff = 2 mu = E / (1 + nu).
 #[test]
 fn uniaxial_compression_matches_youngs_modulus() {
-    for reference_trace in [false, true] {
-        let (e_mod, nu) = (250e3, 0.3);
-        let r = 0.005;
-        let d = 2.0 * r;
-        let side = 0.06;
-        let travel: f64 = 0.002;
-        let mut cfg = SimConfig {
-            particle_radius: r,
-            dt: 1e-3,
-            gravity: [0.0; 3],
-            elasticity_reference_trace: reference_trace,
-            ..Default::default()
-        };
-        let material = PorousMaterial {
-            porosity: 0.6,
-            youngs_modulus: e_mod,
-            poisson_ratio: nu,
-            permeability: 0.0,
-            adhesion: 0.0,
-            ..Default::default()
-        };
-        cfg.scene.porous_blocks.push(PorousBlock {
-            min: [-side / 2.0, -side / 2.0, 0.0],
-            max: [side / 2.0, side / 2.0, side],
-            material,
-            saturated: false,
-            fixed: false,
-        });
-        let plate = |name: &str, z: f64, kin: bool| BodyConfig {
-            name: name.into(),
-            shape: Shape::Box { half_extents: [0.1, 0.1, d] },
-            position: [0.0, 0.0, z],
-            rotation: [0.0; 3],
-            kinematic: kin,
-        };
-        // Plate faces at the block faces z = 0 and z = side.
-        cfg.scene.bodies.push(plate("bottom", -d, false));
-        cfg.scene.bodies.push(plate("top", side + d, true));
-        let mut sim = Simulation::new(cfg, Some(2)).unwrap();
-        let top = sim.boundary().find("top").unwrap();
-        sim.set_body_velocity(top, Vector3::new(0.0, 0.0, -0.02), Vector3::zeros()).unwrap();
-        run(&mut sim, (travel / 0.02 / 1e-3).round() as usize);
-        sim.set_body_velocity(top, Vector3::zeros(), Vector3::zeros()).unwrap();
-        run(&mut sim, 200);
-        let mut f = 0.0;
-        for _ in 0..50 {
-            sim.step().unwrap();
-            f += sim.boundary().bodies[top].force.z / 50.0;
-        }
-        let eps = travel / side;
-        let e_meas = f / (side * side) / eps;
-        let expected = if reference_trace { e_mod / (1.0 + nu) } else { e_mod };
-        let err = (e_meas - expected).abs() / expected;
-        println!("uniaxial (reference trace = {reference_trace}): strain {:.4}, stress {:.0} Pa, E_measured {:.0} Pa vs {:.0} Pa ({:.1} %)", eps, f / (side * side), e_meas, expected, 100.0 * err);
-        assert!(err < 0.10, "modulus error {err}");
-    }
+    let (e_mod, nu) = (250e3, 0.3);
+    let coarse = uniaxial_modulus(0.005, e_mod, nu, false);
+    let fine = uniaxial_modulus(0.0025, e_mod, nu, false);
+    let err = |e: f64, expected: f64| (e - expected).abs() / expected;
+    println!(
+        "uniaxial: E_measured {:.0} Pa at r = 5 mm ({:.1} %), {:.0} Pa at r = 2.5 mm ({:.1} %) vs {:.0} Pa",
+        coarse,
+        100.0 * err(coarse, e_mod),
+        fine,
+        100.0 * err(fine, e_mod),
+        e_mod
+    );
+    assert!(err(fine, e_mod) < err(coarse, e_mod), "the error must shrink under refinement");
+    assert!(err(fine, e_mod) < 0.10, "modulus error {} at r = 2.5 mm", err(fine, e_mod));
+    let reference = uniaxial_modulus(0.0025, e_mod, nu, true);
+    let expected = e_mod / (1.0 + nu);
+    println!(
+        "uniaxial (reference trace): E_measured {:.0} Pa vs E/(1+nu) = {:.0} Pa ({:.1} %)",
+        reference,
+        expected,
+        100.0 * err(reference, expected)
+    );
+    assert!(err(reference, expected) < 0.10, "reference-trace modulus error {}", err(reference, expected));
 }
 
 /// A fixed, fully submerged skeleton: buoyancy = (1 - phi) V_body rho_f g.
@@ -227,4 +248,27 @@ fn buoyancy_of_submerged_skeleton() {
     let err = (fz - expected).abs() / expected;
     println!("buoyancy: {:.3} N vs (1-phi) V rho g = {:.3} N ({:.1} %)", fz, expected, 100.0 * err);
     assert!(err < 0.05, "buoyancy error {err}");
+}
+
+/// A sponge resting on a floor, dry and saturated: the floor load averaged over time equals
+/// the total weight (momentum balance through contacts, boundary pressure and buoyancy).
+#[test]
+fn resting_sponge_floor_load_equals_weight() {
+    for saturated in [false, true] {
+        let mut cfg = rmi_sph::presets::sponge([0.06, 0.06, 0.12], 0.6, 0.005);
+        cfg.scene.porous_blocks[0].saturated = saturated;
+        let mut sim = Simulation::new(cfg, Some(2)).unwrap();
+        let weight = G * sim.particles().mass.iter().sum::<f64>();
+        run(&mut sim, 500);
+        let n = 200;
+        let mut load = 0.0;
+        for _ in 0..n {
+            sim.step().unwrap();
+            load -= sim.boundary().bodies[0].force.z / n as f64;
+        }
+        let err = (load - weight).abs() / weight;
+        println!("resting sponge (saturated = {saturated}): mean floor load {load:.4} N vs weight {weight:.4} N ({:.2} %), {} contacts", 100.0 * err, sim.contacts().len());
+        assert!(err < 0.01, "floor load error {err}");
+        assert!(!sim.contacts().is_empty(), "the skeleton must rest on contacts");
+    }
 }
