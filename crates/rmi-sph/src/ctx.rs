@@ -29,7 +29,33 @@ pub struct Ctx<'a> {
     pub rho0_f: f64,
 }
 
-impl Ctx<'_> {
+impl<'a> Ctx<'a> {
+    /// Bundles the step's borrowed data; the time step, volume and water density come from `cfg`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        p: &'a Particles,
+        nb: &'a NeighbourLists,
+        nbb: &'a NeighbourLists,
+        bnd: &'a Boundary,
+        objects: &'a [PorousObject],
+        rest: &'a SolidRest,
+        kernel: &'a CubicKernel,
+        cfg: &crate::config::SimConfig,
+    ) -> Self {
+        Ctx {
+            p,
+            nb,
+            nbb,
+            bnd,
+            objects,
+            rest,
+            kernel,
+            vol: cfg.spacing().powi(3),
+            dt: cfg.dt,
+            rho0_f: cfg.fluid.density,
+        }
+    }
+
     /// Porous object of a solid dynamic index.
     #[inline]
     pub fn object(&self, a: usize) -> &PorousObject {

@@ -308,18 +308,7 @@ impl Simulation {
     }
 
     fn ctx(&self) -> Ctx<'_> {
-        Ctx {
-            p: &self.p,
-            nb: &self.nb,
-            nbb: &self.nbb,
-            bnd: &self.bnd,
-            objects: &self.objects,
-            rest: &self.rest,
-            kernel: &self.kernel,
-            vol: self.cfg.spacing().powi(3),
-            dt: self.cfg.dt,
-            rho0_f: self.cfg.fluid.density,
-        }
+        Ctx::new(&self.p, &self.nb, &self.nbb, &self.bnd, &self.objects, &self.rest, &self.kernel, &self.cfg)
     }
 
     /// Drag plus adhesion force (N) per dynamic particle at the current velocities; requires
@@ -351,18 +340,8 @@ impl Simulation {
         self.build_neighbours();
         let t1 = Instant::now();
         let cfg = &self.cfg;
-        let ctx = Ctx {
-            p: &self.p,
-            nb: &self.nb,
-            nbb: &self.nbb,
-            bnd: &self.bnd,
-            objects: &self.objects,
-            rest: &self.rest,
-            kernel: &self.kernel,
-            vol: cfg.spacing().powi(3),
-            dt,
-            rho0_f: cfg.fluid.density,
-        };
+        // Field-wise borrows: later passes mutate other fields of `self` while this lives.
+        let ctx = Ctx::new(&self.p, &self.nb, &self.nbb, &self.bnd, &self.objects, &self.rest, &self.kernel, cfg);
         // 2-5. Densities, alpha, porosity, saturation; rotations and elastic stress.
         density::compute(&ctx, &mut self.dens);
         if self.p.n_solid() > 0 {
