@@ -627,15 +627,7 @@ def summarize(results: list[dict]) -> dict | None:
     if not ok:
         return None
     out = {"engine": ok[0].get("engine"), "rounds": len(ok)}
-    numeric = (
-        "fluid_particles",
-        "boundary_particles",
-        "ms_per_step",
-        "mean_pressure_iterations",
-        "ms_per_pressure_iteration",
-        "particle_steps_per_s",
-        "mean_density_error",
-        "peak_rss_bytes",
+    numeric = tuple(k for k in JSON_KEYS if k not in ("engine", "steps")) + (
         "peak_rss_bytes_wait4",
         "other_load",
     )

@@ -70,7 +70,7 @@ struct Op<'a> {
     coef: Vec<Vec<[f64; 2]>>,
 }
 
-impl Op<'_> {
+impl<'a> Op<'a> {
     #[inline]
     fn phi(&self, i: usize) -> f64 {
         self.dens.porosity[i].max(MIN_LOCAL_POROSITY)
@@ -94,6 +94,56 @@ impl Op<'_> {
         o.adhesion * (1.0 - o.material.adhesion_falloff * sat) * (self.c.p.mass[i] + self.c.p.mass[s])
             / (self.rho[i] * self.phi(i) + o.material.dry_density)
             * w
+    }
+
+    /// Operator for this step: current densities and the per-pair coefficient cache.
+    fn new(c: &'a Ctx<'a>, dens: &'a DensityFields, ef: &'a ElasticFields, s: &'a NonPressureSettings) -> Self {
+        let nf = c.p.n_fluid;
+        let rho = (0..c.p.len())
+            .map(|a| dens.rho_ratio[a] * if a < nf { c.rho0_f } else { c.object(a).material.dry_density })
+            .collect();
+        let h = c.kernel.support();
+        let mut op = Op {
+            c,
+            dens,
+            ef,
+            s,
+            rho,
+            eps_h: 0.01 * h * h,
+            implicit_visc: s.viscosity_mode == ViscosityMode::Implicit && s.viscosity > 0.0,
+            coef: Vec::new(),
+        };
+        op.fill_coefficients();
+        op
+    }
+
+    /// Pairs of `a` that carry implicit terms: for water, its skeleton neighbours (and its
+    /// water neighbours when viscosity is implicit); for the skeleton, its water neighbours.
+    #[inline(always)]
+    fn coupled(&self, a: usize, nb: &crate::neighbours::Nb) -> std::ops::Range<usize> {
+        if !self.c.p.is_fluid(a) {
+            0..nb.n_fluid
+        } else if self.implicit_visc {
+            0..nb.j.len()
+        } else {
+            nb.n_fluid..nb.j.len()
+        }
+    }
+
+    /// Position part of adhesion on `a`, `-sum c_ab (x_a - x_b)` (N).
+    fn adhesion_position_force(&self, a: usize) -> Vector3<f64> {
+        let c = self.c;
+        let nb = c.nb.of(a);
+        let cf = self.coefs(a);
+        let xa = c.p.x[a];
+        let mut f = Vector3::zeros();
+        for k in self.coupled(a, &nb) {
+            let adh = cf[k][1];
+            if adh != 0.0 {
+                f -= adh * (xa - c.p.x[nb.j[k] as usize]);
+            }
+        }
+        f
     }
 
     /// Fills the per-pair coefficient cache (once per step; the operator runs every CG pass).
@@ -143,19 +193,7 @@ impl Op<'_> {
         let ya = y[a];
         let dt = c.dt;
         let mut f = Vector3::zeros();
-        let fluid = c.p.is_fluid(a);
-        // Fluid centre: fluid pairs carry viscosity (if implicit), solid pairs drag + adhesion.
-        // Solid centre: only fluid pairs carry drag + adhesion.
-        let range = if fluid {
-            if self.implicit_visc {
-                0..nb.j.len()
-            } else {
-                nb.n_fluid..nb.j.len()
-            }
-        } else {
-            0..nb.n_fluid
-        };
-        for k in range {
+        for k in self.coupled(a, &nb) {
             let b = nb.j[k] as usize;
             let yab = ya - y[b];
             let [lap, adh] = cf[k];
@@ -164,7 +202,7 @@ impl Op<'_> {
                 f -= (dt * adh) * yab;
             }
         }
-        if fluid && self.implicit_visc && self.s.boundary_viscosity > 0.0 {
+        if c.p.is_fluid(a) && self.implicit_visc && self.s.boundary_viscosity > 0.0 {
             f += self.boundary_visc(a, ya, false);
         }
         f
@@ -223,31 +261,17 @@ impl Op<'_> {
                 return;
             }
             let nb = c.nb.of(a);
+            let cf = self.coefs(a);
             let xa = c.p.x[a];
             // d(F_lin)/d(y_a): pair terms coef * grad W x^T and -dt c I.
             let mut jac = Matrix3::zeros();
-            let fluid = a < nf;
-            let range = if fluid { 0..nb.j.len() } else { 0..nb.n_fluid };
-            for k in range {
-                let b = nb.j[k] as usize;
-                let xab = xa - c.p.x[b];
-                let r2 = xab.norm_squared() + self.eps_h;
-                let (coef, adh) = if fluid && k < nb.n_fluid {
-                    if !self.implicit_visc {
-                        continue;
-                    }
-                    let mu = self.s.viscosity * c.rho0_f;
-                    ((m / self.rho[a]) * (c.p.mass[b] / self.rho[b]) * LAPLACE_D * mu / r2, 0.0)
-                } else if fluid {
-                    (self.drag(a, b) / r2, self.adhesion(a, b, nb.w[k]))
-                } else {
-                    (self.drag(b, a) / r2, self.adhesion(b, a, nb.w[k]))
-                };
-                jac += coef * nb.g[k] * xab.transpose();
+            for k in self.coupled(a, &nb) {
+                let [lap, adh] = cf[k];
+                jac += lap * nb.g[k] * (xa - c.p.x[nb.j[k] as usize]).transpose();
                 jac -= Matrix3::from_diagonal_element(dt * adh);
             }
             let mut block = Matrix3::from_diagonal_element(m) - dt * jac;
-            if !fluid {
+            if a >= nf {
                 block += dt * dt * elasticity::diagonal_block(c, self.ef, &self.dens.saturation, a - nf);
             }
             *mi = block.try_inverse().unwrap_or_else(|| Matrix3::identity() / m);
@@ -315,22 +339,7 @@ pub fn solve(
 ) -> (CgStats, Vec<f64>) {
     let n = c.p.len();
     let nf = c.p.n_fluid;
-    let rho: Vec<f64> =
-        (0..n).map(|a| dens.rho_ratio[a] * if a < nf { c.rho0_f } else { c.object(a).material.dry_density }).collect();
-    let h = c.kernel.support();
-    let op = Op {
-        c,
-        dens,
-        ef,
-        s,
-        rho,
-        eps_h: 0.01 * h * h,
-        implicit_visc: s.viscosity_mode == ViscosityMode::Implicit && s.viscosity > 0.0,
-        coef: Vec::new(),
-    };
-    let mut op = op;
-    op.fill_coefficients();
-    let op = op;
+    let op = Op::new(c, dens, ef, s);
     let sat = &dens.saturation;
     for buf in [&mut w.r, &mut w.z, &mut w.p, &mut w.ap, &mut w.b] {
         buf.resize(n, Vector3::zeros());
@@ -346,13 +355,8 @@ pub fn solve(
                 return;
             }
             let nb = c.nb.of(a);
-            let xa = c.p.x[a];
-            let mut f = m * gravity;
+            let mut f = m * gravity + op.adhesion_position_force(a);
             if a < nf {
-                for k in nb.n_fluid..nb.j.len() {
-                    let sidx = nb.j[k] as usize;
-                    f -= op.adhesion(a, sidx, nb.w[k]) * (xa - c.p.x[sidx]);
-                }
                 if op.implicit_visc && s.boundary_viscosity > 0.0 {
                     f += op.boundary_visc(a, Vector3::zeros(), true);
                 }
@@ -360,7 +364,6 @@ pub fn solve(
                 let phi = c.object(a).material.porosity;
                 for k in 0..nb.n_fluid {
                     let i = nb.j[k] as usize;
-                    f -= op.adhesion(i, a, nb.w[k]) * (xa - c.p.x[i]);
                     // Buoyancy: reaction of the fluid-side skeleton pressure term (lagged).
                     f -= ((1.0 - phi) * c.vol * c.p.mass[i] * kappa_prev[i]) * nb.g[k];
                 }
@@ -489,11 +492,7 @@ pub fn explicit_accelerations(
 /// positions (both the velocity and the position part). Pairwise equal and opposite, so the
 /// sum vanishes to round-off: a momentum-conservation diagnostic.
 pub fn coupling_forces(c: &Ctx, dens: &DensityFields, v: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
-    let n = c.p.len();
-    let nf = c.p.n_fluid;
-    let rho: Vec<f64> =
-        (0..n).map(|a| dens.rho_ratio[a] * if a < nf { c.rho0_f } else { c.object(a).material.dry_density }).collect();
-    let h = c.kernel.support();
+    // Viscosity off: only the inter-phase terms (drag, adhesion) are evaluated.
     let s = NonPressureSettings {
         viscosity: 0.0,
         boundary_viscosity: 0.0,
@@ -504,28 +503,8 @@ pub fn coupling_forces(c: &Ctx, dens: &DensityFields, v: &[Vector3<f64>]) -> Vec
         warm_start: false,
     };
     let ef = ElasticFields::default();
-    let mut op = Op { c, dens, ef: &ef, s: &s, rho, eps_h: 0.01 * h * h, implicit_visc: false, coef: Vec::new() };
-    op.fill_coefficients();
-    (0..n)
-        .into_par_iter()
-        .map(|a| {
-            let mut f = op.pair_forces(a, v);
-            let nb = c.nb.of(a);
-            let xa = c.p.x[a];
-            if a < nf {
-                for k in nb.n_fluid..nb.j.len() {
-                    let sidx = nb.j[k] as usize;
-                    f -= op.adhesion(a, sidx, nb.w[k]) * (xa - c.p.x[sidx]);
-                }
-            } else {
-                for k in 0..nb.n_fluid {
-                    let i = nb.j[k] as usize;
-                    f -= op.adhesion(i, a, nb.w[k]) * (xa - c.p.x[i]);
-                }
-            }
-            f
-        })
-        .collect()
+    let op = Op::new(c, dens, &ef, &s);
+    (0..c.p.len()).into_par_iter().map(|a| op.pair_forces(a, v) + op.adhesion_position_force(a)).collect()
 }
 
 /// Buoyancy force (N) on each skeleton particle from the pressure `kappa` (physics.md 3.3).

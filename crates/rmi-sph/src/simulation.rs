@@ -283,6 +283,18 @@ impl Simulation {
         apply(&mut self.p.id, &perm);
         apply(&mut self.kappa_dt2, &perm);
         apply(&mut self.dv_prev, &perm);
+        // Fields of the last step, so that accessors stay aligned with the particles.
+        for f in [
+            &mut self.kappa,
+            &mut self.dens.rho_ratio,
+            &mut self.dens.alpha,
+            &mut self.dens.porosity,
+            &mut self.dens.saturation,
+        ] {
+            if f.len() >= perm.len() {
+                apply(f, &perm);
+            }
+        }
     }
 
     /// Rebuilds neighbour lists and density, porosity and saturation fields at the current
