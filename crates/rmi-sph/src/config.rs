@@ -192,6 +192,11 @@ pub struct SceneConfig {
     pub porous_blocks: Vec<PorousBlock>,
     /// Rigid boundary bodies.
     pub bodies: Vec<BodyConfig>,
+    /// Random displacement of every pore-water particle, as a fraction of the spacing, so
+    /// that trials with different seeds start from different particle states (0 = lattice).
+    pub jitter: f64,
+    /// Seed of that displacement (a counter-based hash: the same seed gives the same scene).
+    pub seed: u64,
 }
 
 /// Pressure solver settings (relaxed Jacobi IISPH with porosity-aware volume factors).
@@ -295,6 +300,12 @@ fn range(field: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<()> {
     } else {
         Err(RmiError::config(field, v, format!("a finite value in [{lo}, {hi}] {unit}")))
     }
+}
+
+/// `lo <= v <= hi` and finite, else an [`RmiError::InvalidConfig`] naming `field`, the range
+/// and `unit`; for the robot layer's configs.
+pub fn check_range(field: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<()> {
+    range(field, v, lo, hi, unit)
 }
 
 /// Open-interval check helper: `lo < v < hi`, finite.
@@ -420,6 +431,7 @@ impl SimConfig {
             aabb(&p, &b.min, &b.max, d)?;
             b.material.validate(&format!("{p}.material"))?;
         }
+        range("scene.jitter", self.scene.jitter, 0.0, 0.25, "(fraction of the spacing)")?;
         let mut names = std::collections::HashSet::new();
         for (i, b) in self.scene.bodies.iter().enumerate() {
             let p = format!("scene.bodies[{i}]");

@@ -18,13 +18,16 @@ pub struct DensityFields {
     pub porosity: Vec<f64>,
     /// Solid: saturation in [0, 1]. Fluid: 0.
     pub saturation: Vec<f64>,
+    /// Fluid: skeleton coverage sum_s V W (about 1 inside a sponge, 1/2 on its surface).
+    /// Solid: 0.
+    pub skeleton_cover: Vec<f64>,
 }
 
 /// Computes densities, alpha, local porosity and saturation for every dynamic particle.
 pub fn compute(c: &Ctx, out: &mut DensityFields) {
     let n = c.p.len();
     let nf = c.p.n_fluid;
-    let mut rows: Vec<(f64, f64, f64, f64)> = vec![(0.0, 0.0, 0.0, 0.0); n];
+    let mut rows: Vec<(f64, f64, f64, f64, f64)> = vec![(0.0, 0.0, 0.0, 0.0, 0.0); n];
     rows.par_iter_mut().enumerate().for_each(|(a, row)| {
         let nb = c.nb.of(a);
         let nbb = c.nbb.of(a);
@@ -35,6 +38,7 @@ pub fn compute(c: &Ctx, out: &mut DensityFields) {
         let mut grad_sum = Vector3::zeros();
         let mut grad_sq = 0.0;
         let mut solid_cover = 0.0; // sum over solids (1-phi) V W, for fluid porosity
+        let mut skeleton_cover = 0.0; // sum over solids V W
         let mut fluid_sum = 0.0; // sum over fluid V W, for saturation
         let mut same_shepard = v * c.kernel.w0(); // same-object sum V W, self included
         for k in 0..nb.j.len() {
@@ -47,6 +51,7 @@ pub fn compute(c: &Ctx, out: &mut DensityFields) {
             if fluid {
                 if k >= nb.n_fluid {
                     solid_cover += f * v * nb.w[k];
+                    skeleton_cover += v * nb.w[k];
                 }
             } else if k < nb.n_fluid {
                 fluid_sum += v * nb.w[k];
@@ -77,13 +82,15 @@ pub fn compute(c: &Ctx, out: &mut DensityFields) {
             let cur_phi = (1.0 - (1.0 - phi) * same_shepard / cover0).max(MIN_LOCAL_POROSITY);
             (cur_phi, (fluid_sum / (cover0 * cur_phi)).min(1.0))
         };
-        *row = (dens, alpha, porosity, saturation);
+        *row = (dens, alpha, porosity, saturation, skeleton_cover);
     });
     out.rho_ratio.clear();
     out.alpha.clear();
     out.porosity.clear();
     out.saturation.clear();
+    out.skeleton_cover.clear();
     for r in rows {
+        out.skeleton_cover.push(r.4);
         out.rho_ratio.push(r.0);
         out.alpha.push(r.1);
         out.porosity.push(r.2);

@@ -25,6 +25,16 @@ fn lattice(min: &[f64; 3], max: &[f64; 3], n: [usize; 3]) -> Vec<Vector3<f64>> {
     pts
 }
 
+/// A uniform value in [-1, 1) from (seed, counter) by the splitmix64 finaliser: the same
+/// inputs give the same value on every machine and thread count.
+fn unit_hash(seed: u64, k: u64) -> f64 {
+    let mut z = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ k.wrapping_add(0x632B_E59B_D9B4_E019);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    (z >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+}
+
 /// Lattice counts whose product is closest to `target` points for a box, each axis near
 /// `len / spacing` (so pore water sums to the right bulk density).
 fn counts_for(min: &[f64; 3], max: &[f64; 3], spacing: f64, target: f64) -> [usize; 3] {
@@ -82,8 +92,19 @@ pub fn build(cfg: &SimConfig, kernel: &CubicKernel) -> Built {
         let phi = b.material.porosity;
         let boxvol: f64 = (0..3).map(|k| b.max[k] - b.min[k]).product();
         let n = counts_for(&b.min, &b.max, d * phi.powf(-1.0 / 3.0), phi * boxvol / vol);
+        let amp = cfg.scene.jitter * d;
         for x in lattice(&b.min, &b.max, n) {
-            push(&mut p, x, Vector3::zeros(), mf, FLUID);
+            let k = p.x.len() as u64;
+            let dx = if amp > 0.0 {
+                Vector3::new(
+                    unit_hash(cfg.scene.seed, 3 * k),
+                    unit_hash(cfg.scene.seed, 3 * k + 1),
+                    unit_hash(cfg.scene.seed, 3 * k + 2),
+                ) * amp
+            } else {
+                Vector3::zeros()
+            };
+            push(&mut p, x + dx, Vector3::zeros(), mf, FLUID);
         }
     }
     p.n_fluid = p.x.len();

@@ -290,6 +290,7 @@ impl Simulation {
             &mut self.dens.alpha,
             &mut self.dens.porosity,
             &mut self.dens.saturation,
+            &mut self.dens.skeleton_cover,
         ] {
             if f.len() >= perm.len() {
                 apply(f, &perm);
@@ -637,5 +638,75 @@ impl Simulation {
     /// Skeleton rest data.
     pub fn rest(&self) -> &SolidRest {
         &self.rest
+    }
+}
+
+/// Aggregates of the porous skeleton that the robot layer observes.
+impl Simulation {
+    /// Skeleton coverage `sum_s V W(x_f - x_s)` of every fluid particle (dimensionless), at
+    /// the positions of the last step's start (or of [`Simulation::update_fields`]).
+    pub fn skeleton_cover(&self) -> &[f64] {
+        let nf = self.p.n_fluid;
+        &self.dens.skeleton_cover[..nf.min(self.dens.skeleton_cover.len())]
+    }
+
+    /// Current sponge volume, pore volume (m^3) and pore-volume-weighted mean saturation of
+    /// porous object `k`, from its particles' local porosity and saturation (last step).
+    pub fn sponge_volumes(&self, k: usize) -> (f64, f64, f64) {
+        let Some(o) = self.objects.get(k) else { return (0.0, 0.0, 0.0) };
+        if self.dens.porosity.len() != self.p.len() {
+            let n = o.range.len() as f64 * self.volume();
+            return (n, o.material.porosity * n, 0.0);
+        }
+        let phi = o.material.porosity;
+        let v0 = self.volume();
+        let (mut vs, mut vp, mut sw) = (0.0, 0.0, 0.0);
+        for a in o.range.clone() {
+            let cur = self.dens.porosity[a];
+            let vol = v0 * (1.0 - phi) / (1.0 - cur);
+            vs += vol;
+            vp += cur * vol;
+            sw += cur * vol * self.dens.saturation[a];
+        }
+        (vs, vp, if vp > 0.0 { sw / vp } else { 0.0 })
+    }
+
+    /// Mass (kg), centre of mass (m) and centre-of-mass velocity (m/s) of porous object `k`.
+    pub fn object_motion(&self, k: usize) -> (f64, Vector3<f64>, Vector3<f64>) {
+        let Some(o) = self.objects.get(k) else { return (0.0, Vector3::zeros(), Vector3::zeros()) };
+        let (mut m, mut x, mut v) = (0.0, Vector3::zeros(), Vector3::zeros());
+        for a in o.range.clone() {
+            let ma = self.p.mass[a];
+            m += ma;
+            x += ma * self.p.x[a];
+            v += ma * self.p.v[a];
+        }
+        if m > 0.0 {
+            (m, x / m, v / m)
+        } else {
+            (0.0, x, v)
+        }
+    }
+}
+
+/// Pressure read-back for bindings and output (added for the Python binding).
+impl Simulation {
+    /// Pressure (Pa) of every dynamic particle from the last pressure solve:
+    /// `p = rho0 * rho_ratio * kappa` with `kappa = kappa_dt2 / dt^2` (the copy of kappa that
+    /// snapshots carry, so a restored state reports the same values) and `rho0` the rest
+    /// density of the particle's material (water; the dry density for skeleton particles, whose
+    /// value is the skeleton's pressure unknown in the same form). Zero before the first step.
+    pub fn pressure(&self) -> Vec<f64> {
+        let dt2 = self.cfg.dt * self.cfg.dt;
+        let nf = self.p.n_fluid;
+        (0..self.p.len())
+            .map(|a| {
+                let object = if a < nf { None } else { (self.p.material[a] as usize).checked_sub(1) };
+                let rho0 =
+                    object.and_then(|k| self.objects.get(k)).map_or(self.cfg.fluid.density, |o| o.material.dry_density);
+                let ratio = self.dens.rho_ratio.get(a).copied().unwrap_or(1.0);
+                rho0 * ratio * self.kappa_dt2.get(a).copied().unwrap_or(0.0) / dt2
+            })
+            .collect()
     }
 }

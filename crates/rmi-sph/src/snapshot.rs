@@ -105,21 +105,27 @@ impl Snapshot {
 
     /// Writes to `path` atomically (temporary file in the same folder, then rename).
     pub fn save(&self, path: &std::path::Path) -> Result<()> {
-        let tmp = path.with_extension(format!("tmp{}", std::process::id()));
-        let res = (|| {
-            let mut f = std::fs::File::create(&tmp)?;
-            f.write_all(&self.to_bytes())?;
-            f.sync_all()?;
-            std::fs::rename(&tmp, path)
-        })();
-        if res.is_err() {
-            let _ = std::fs::remove_file(&tmp);
-        }
-        res.map_err(RmiError::from)
+        write_atomic(path, &self.to_bytes())
     }
 
     /// Reads and checks a snapshot file.
     pub fn load(path: &std::path::Path) -> Result<Self> {
         Self::from_bytes(&std::fs::read(path)?)
     }
+}
+
+/// Writes `bytes` to `path` through a temporary file in the same folder, synced and then
+/// renamed, so that a crash leaves either the old file or the new one, never half of one.
+pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> Result<()> {
+    let tmp = path.with_extension(format!("tmp{}", std::process::id()));
+    let res = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if res.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    res.map_err(RmiError::from)
 }

@@ -1,0 +1,360 @@
+//! Coulomb friction with contact memory between skeleton particles and bodies (paper Eq. 4,
+//! supplement S3-S8).
+//!
+//! Each contacting skeleton particle keeps an anchor, its contact point in the body frame,
+//! while it sticks. The restoring demand pulls it back toward that anchor; when the demand
+//! leaves the static cone the anchor is dropped and a kinetic force, limited so that it can
+//! never reverse the slip within one step, is applied instead. Memoryless damping would let
+//! the integration error of a held sponge accumulate into a slow slide.
+
+use crate::boundary::BodyState;
+use crate::simulation::ContactStage;
+use nalgebra::{Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// Friction parameters. Dimensionless except `eps_v` (m/s).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FrictionParams {
+    /// Static coefficient mu_st.
+    pub mu_static: f64,
+    /// Kinetic coefficient mu_kin (at most mu_st).
+    pub mu_kinetic: f64,
+    /// Positional recovery gain beta in (0, 1].
+    pub beta: f64,
+    /// Regulariser of the slip direction (m/s), > 0.
+    pub eps_v: f64,
+}
+
+impl Default for FrictionParams {
+    fn default() -> Self {
+        FrictionParams { mu_static: 0.6, mu_kinetic: 0.5, beta: 0.2, eps_v: 1e-6 }
+    }
+}
+
+impl FrictionParams {
+    /// Validates every field; `p` is the dotted path used in error messages.
+    pub fn validate(&self, p: &str) -> crate::Result<()> {
+        use crate::config::check_range as range;
+        range(&format!("{p}.mu_static"), self.mu_static, 0.0, 10.0, "(dimensionless)")?;
+        range(&format!("{p}.mu_kinetic"), self.mu_kinetic, 0.0, self.mu_static, "(dimensionless, at most mu_static)")?;
+        range(&format!("{p}.beta"), self.beta, 1e-6, 1.0, "(dimensionless)")?;
+        range(&format!("{p}.eps_v"), self.eps_v, 1e-12, 1.0, "m/s")
+    }
+}
+
+/// The outcome of Eq. 4 for one contact.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrictionForce {
+    /// Force applied to the particle (N), tangential.
+    pub force: Vector3<f64>,
+    /// True when the demand stayed inside the static cone (the anchor is kept).
+    pub stick: bool,
+}
+
+/// Eq. 4a-4d: the friction force on a particle of mass `m` (kg) with normal load `normal`
+/// (N), tangential anchor error `e` (m) and tangential velocity before friction `v_tan`
+/// (m/s), over a step `dt` (s).
+pub fn coulomb(
+    m: f64,
+    dt: f64,
+    normal: f64,
+    e: &Vector3<f64>,
+    v_tan: &Vector3<f64>,
+    p: &FrictionParams,
+) -> FrictionForce {
+    let demand = (m / dt) * (p.beta / dt * e - v_tan);
+    if demand.norm() <= p.mu_static * normal {
+        return FrictionForce { force: demand, stick: true };
+    }
+    let speed = v_tan.norm();
+    // Eq. 4b: never more than what stops the slip in this step.
+    let kappa = (p.mu_kinetic * normal).min(m * speed / dt);
+    FrictionForce { force: -kappa * v_tan / speed.max(p.eps_v), stick: false }
+}
+
+/// A stored stick point: body index and contact point in that body's frame (m).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Anchor {
+    /// Body index.
+    pub body: u16,
+    /// Contact point in the body frame (m).
+    pub local: [f64; 3],
+}
+
+/// Per-contact result of a friction pass, for the observation.
+#[derive(Clone, Copy, Debug)]
+pub struct ContactFriction {
+    /// Dynamic particle index.
+    pub particle: u32,
+    /// Body index.
+    pub body: u16,
+    /// Normal load N_s (N).
+    pub normal_force: f64,
+    /// Tangential velocity relative to the body before friction (m/s), Eq. S3.
+    pub v_tan: Vector3<f64>,
+    /// Applied friction force on the particle (N).
+    pub force: Vector3<f64>,
+    /// Tangential velocity relative to the body after friction (m/s), Eq. S7.
+    pub v_tan_corr: Vector3<f64>,
+    /// Stick (true) or slip.
+    pub stick: bool,
+}
+
+/// Contact memory: the anchors of all skeleton particles, indexed by solid index.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct ContactMemory {
+    anchors: Vec<Vec<Anchor>>,
+}
+
+impl ContactMemory {
+    /// Memory for `n_solid` skeleton particles, all without anchor.
+    pub fn new(n_solid: usize) -> Self {
+        ContactMemory { anchors: vec![Vec::new(); n_solid] }
+    }
+
+    /// Number of skeleton particles the memory covers.
+    pub fn particles(&self) -> usize {
+        self.anchors.len()
+    }
+
+    /// Number of anchors currently stored.
+    pub fn len(&self) -> usize {
+        self.anchors.iter().map(Vec::len).sum()
+    }
+
+    /// True when no anchor is stored.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The anchor of solid particle `s` on `body`, if it sticks there.
+    pub fn anchor(&self, s: usize, body: u16) -> Option<&Anchor> {
+        self.anchors.get(s)?.iter().find(|a| a.body == body)
+    }
+
+    /// Applies friction to every skeleton contact with a body in `bodies` (and a positive
+    /// normal load), updates the anchors, adds the reactions to the body loads and returns
+    /// one record per contact, in particle order. Contacts that ended drop their anchors.
+    pub fn apply(&mut self, stage: &mut ContactStage<'_>, bodies: &[bool], p: &FrictionParams) -> Vec<ContactFriction> {
+        let nf = stage.particles.n_fluid;
+        let dt = stage.dt;
+        let mut touched = vec![false; self.anchors.len()];
+        let mut out = Vec::new();
+        for c in stage.contacts {
+            let a = c.particle as usize;
+            let bi = c.body as usize;
+            if a < nf || c.normal_force <= 0.0 || !bodies.get(bi).copied().unwrap_or(false) {
+                continue;
+            }
+            let s = a - nf;
+            if stage.rest_fixed[s] {
+                continue;
+            }
+            touched[s] = true;
+            let body = stage.body(bi).clone();
+            let n = c.normal;
+            let proj = Matrix3::identity() - n * n.transpose();
+            let vb = point_velocity(&body, &c.point);
+            let v_tan = proj * (stage.v[a] - vb);
+            let slot = &mut self.anchors[s];
+            let existing = slot.iter().position(|x| x.body == c.body);
+            let e = match existing {
+                Some(k) => proj * (body.position + body.rotation * Vector3::from(slot[k].local) - c.point),
+                None => Vector3::zeros(),
+            };
+            let m = stage.particles.mass[a];
+            let f = coulomb(m, dt, c.normal_force, &e, &v_tan, p);
+            match (f.stick, existing) {
+                (true, None) => {
+                    let q = body.rotation.inverse() * (c.point - body.position);
+                    slot.push(Anchor { body: c.body, local: q.into() });
+                }
+                (false, Some(k)) => {
+                    slot.remove(k);
+                }
+                _ => {}
+            }
+            stage.v[a] += dt / m * f.force;
+            let v_tan_corr = proj * (stage.v[a] - vb);
+            let (force, torque) = &mut stage.body_forces[bi];
+            *force -= f.force;
+            *torque -= (c.point - body.position).cross(&f.force);
+            out.push(ContactFriction {
+                particle: c.particle,
+                body: c.body,
+                normal_force: c.normal_force,
+                v_tan,
+                force: f.force,
+                v_tan_corr,
+                stick: f.stick,
+            });
+        }
+        // A contact that ended forgets its anchor; so does one whose body lost the contact.
+        for (s, slot) in self.anchors.iter_mut().enumerate() {
+            if !touched[s] {
+                slot.clear();
+            } else {
+                slot.retain(|x| out.iter().any(|r| r.particle as usize == s + nf && r.body == x.body));
+            }
+        }
+        out
+    }
+}
+
+/// Eq. S2: velocity of the body at a world point.
+fn point_velocity(b: &BodyState, x: &Vector3<f64>) -> Vector3<f64> {
+    b.velocity + b.angular_velocity.cross(&(x - b.position))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const M: f64 = 1e-3;
+    const DT: f64 = 1e-3;
+
+    #[test]
+    fn stick_inside_the_static_cone() {
+        let p = FrictionParams::default();
+        let v = Vector3::new(0.001, 0.0, 0.0);
+        let f = coulomb(M, DT, 10.0, &Vector3::zeros(), &v, &p);
+        assert!(f.stick);
+        // The demand cancels the tangential velocity exactly.
+        assert!((f.force + M / DT * v).norm() < 1e-15);
+    }
+
+    #[test]
+    fn anchor_error_pulls_back_with_gain_beta() {
+        let p = FrictionParams::default();
+        let e = Vector3::new(0.0, 1e-4, 0.0);
+        let f = coulomb(M, DT, 10.0, &e, &Vector3::zeros(), &p);
+        assert!(f.stick);
+        assert!((f.force - M / (DT * DT) * p.beta * e).norm() < 1e-12);
+    }
+
+    #[test]
+    fn exceeding_the_static_bound_slips_with_the_kinetic_force() {
+        let p = FrictionParams::default();
+        let v = Vector3::new(0.0, 0.0, -1.0);
+        let normal = 0.5; // demand m v / dt = 1 N > 0.6 * 0.5
+        let f = coulomb(M, DT, normal, &Vector3::zeros(), &v, &p);
+        assert!(!f.stick);
+        assert!((f.force - Vector3::new(0.0, 0.0, p.mu_kinetic * normal)).norm() < 1e-12);
+    }
+
+    #[test]
+    fn kinetic_correction_never_reverses_the_slip() {
+        let p = FrictionParams::default();
+        // A large anchor error forces slip although the particle barely moves: the kinetic
+        // force must stop at zero tangential velocity, not push it backwards.
+        let v = Vector3::new(1e-4, 0.0, 0.0);
+        let e = Vector3::new(-1.0, 0.0, 0.0);
+        let f = coulomb(M, DT, 1.0, &e, &v, &p);
+        assert!(!f.stick);
+        let v_after = v + DT / M * f.force;
+        assert!(v_after.dot(&v) >= -1e-15, "slip reversed: {v_after:?}");
+        assert!(v_after.norm() < 1e-15);
+    }
+
+    #[test]
+    fn zero_velocity_slip_stays_finite() {
+        let p = FrictionParams::default();
+        let f = coulomb(M, DT, 0.1, &Vector3::new(1.0, 0.0, 0.0), &Vector3::zeros(), &p);
+        assert!(!f.stick && f.force.iter().all(|x| x.is_finite()) && f.force.norm() == 0.0);
+    }
+
+    /// One skeleton particle pressed against a static plate below it (normal +z).
+    fn scene(v: Vector3<f64>) -> (crate::particles::Particles, crate::boundary::Boundary) {
+        use crate::config::{BodyConfig, Shape};
+        let k = crate::kernel::CubicKernel::new(0.04);
+        let cfg = BodyConfig {
+            name: "plate".into(),
+            shape: Shape::Box { half_extents: [0.2, 0.2, 0.01] },
+            position: [0.0, 0.0, -0.02],
+            rotation: [0.0; 3],
+            kinematic: true,
+        };
+        let b = crate::boundary::Boundary::new(&[cfg], 0.01, &k);
+        let p = crate::particles::Particles {
+            n_fluid: 0,
+            x: vec![Vector3::new(0.0, 0.0, -0.005)],
+            v: vec![v],
+            mass: vec![M],
+            material: vec![1],
+            id: vec![0],
+        };
+        (p, b)
+    }
+
+    fn run(
+        mem: &mut ContactMemory,
+        p: &crate::particles::Particles,
+        b: &crate::boundary::Boundary,
+        normal: f64,
+    ) -> (Vector3<f64>, Vec<ContactFriction>) {
+        let contacts = [crate::contact::Contact {
+            particle: 0,
+            body: 0,
+            normal: Vector3::z(),
+            point: Vector3::new(p.x[0].x, p.x[0].y, -0.01),
+            normal_force: normal,
+        }];
+        let mut v = p.v.clone();
+        let mut forces = vec![(Vector3::zeros(), Vector3::zeros())];
+        let mut stage = ContactStage {
+            particles: p,
+            v: &mut v,
+            contacts: &contacts,
+            boundary: b,
+            body_forces: &mut forces,
+            dt: DT,
+            rest_fixed: &[false],
+        };
+        let out = mem.apply(&mut stage, &[true], &FrictionParams::default());
+        // Reaction on the plate balances the force on the particle.
+        assert!((forces[0].0 + out[0].force).norm() < 1e-15);
+        (v[0], out)
+    }
+
+    #[test]
+    fn memory_keeps_the_anchor_while_sticking_and_drops_it_on_slip() {
+        let (mut p, b) = scene(Vector3::new(1e-3, 0.0, 0.0));
+        let mut mem = ContactMemory::new(1);
+        let (v, out) = run(&mut mem, &p, &b, 10.0);
+        assert!(out[0].stick && v.x.abs() < 1e-15);
+        let first = *mem.anchor(0, 0).expect("anchor stored on stick");
+        // The particle creeps 0.1 mm: the anchor stays where it was, and the demand pulls back.
+        p.x[0].x += 1e-4;
+        p.v[0] = Vector3::zeros();
+        let (v, out) = run(&mut mem, &p, &b, 10.0);
+        assert!(out[0].stick);
+        assert_eq!(*mem.anchor(0, 0).unwrap(), first);
+        assert!((v.x + FrictionParams::default().beta * 1e-4 / DT).abs() < 1e-12, "restoring velocity {v:?}");
+        // A demand beyond mu_st N releases the anchor and applies the kinetic force.
+        p.v[0] = Vector3::new(1.0, 0.0, 0.0);
+        let (v, out) = run(&mut mem, &p, &b, 0.1);
+        assert!(!out[0].stick && mem.anchor(0, 0).is_none());
+        assert!((out[0].force.x + 0.5 * 0.1).abs() < 1e-12);
+        assert!(v.x > 0.0 && v.x < 1.0);
+        // A new anchor is created when sticking is established again.
+        p.v[0] = Vector3::zeros();
+        let (_, out) = run(&mut mem, &p, &b, 10.0);
+        assert!(out[0].stick);
+        assert_eq!(mem.anchor(0, 0).unwrap().local, [p.x[0].x, 0.0, 0.01]);
+        // A contact that ends forgets its anchor.
+        let mut stage_v = p.v.clone();
+        let mut forces = vec![(Vector3::zeros(), Vector3::zeros())];
+        let mut stage = ContactStage {
+            particles: &p,
+            v: &mut stage_v,
+            contacts: &[],
+            boundary: &b,
+            body_forces: &mut forces,
+            dt: DT,
+            rest_fixed: &[false],
+        };
+        mem.apply(&mut stage, &[true], &FrictionParams::default());
+        assert!(mem.is_empty());
+    }
+}

@@ -1,0 +1,151 @@
+//! The robot interaction layer end to end: lifting against the Coulomb limit, water per
+//! phase, liquid mass bookkeeping, determinism and saved states.
+
+use rmi_sph::controller::{Action, Phase};
+use rmi_sph::trial::{run_trial, Trial, TrialConfig};
+
+/// A short trial: 8 x 8 x 18 cm sponge at r = 5 mm with brief phases.
+fn short(hold: f64, squeeze: f64) -> TrialConfig {
+    let mut c = TrialConfig {
+        size: rmi_sph::presets::SPONGE_SIZES[0],
+        hold_force: hold,
+        squeeze_force: squeeze,
+        ..Default::default()
+    };
+    let k = &mut c.controller;
+    k.settle_time = 0.05;
+    k.ramp_time = 0.3;
+    k.hold_time = 0.2;
+    k.wait_time = 0.2;
+    k.squeeze_ramp_time = 0.1;
+    k.squeeze_hold_time = 0.05;
+    c
+}
+
+/// A dry, dense block (1000 kg/m^3, so the friction limit is well above the contact
+/// threshold): lifted when each pad presses harder than m g / (2 mu_st), dropped when not.
+#[test]
+fn dry_block_lifts_only_above_the_coulomb_limit() {
+    let mut base = short(1.0, 1.0);
+    base.saturated = false;
+    base.material.dry_density = 1000.0;
+    let probe = Trial::new(base.clone(), Some(2)).unwrap();
+    let mass: f64 = probe.simulation().particles().mass.iter().sum();
+    let limit = mass * 9.81 / (2.0 * base.friction.mu_static);
+    println!("block mass {mass:.3} kg, per-pad friction limit {limit:.2} N");
+    for (factor, should_lift) in [(0.6, false), (1.5, true)] {
+        let mut c = base.clone();
+        c.hold_force = factor * limit;
+        c.squeeze_force = factor * limit;
+        let r = run_trial(c, Some(2)).unwrap();
+        let o = &r.outcome;
+        println!("hold {:.2} N ({factor} x limit): lift {} failure {:?}", factor * limit, o.lift_success, o.failure);
+        assert!(o.gate_opened_at.is_some(), "the gate must open before the lift is tried");
+        assert_eq!(o.lift_success, should_lift, "hold at {factor} x the Coulomb limit: {o:?}");
+        if !should_lift {
+            assert_eq!(o.failure.as_deref(), Some("dropped"));
+        } else {
+            // Held: the grasp sticks and the regulated load is the holding force.
+            let last = r.records.last().unwrap();
+            assert!(last.contact && last.v_res.unwrap() < 1e-3, "{last:?}");
+            assert!((last.f_meas - factor * limit).abs() < 0.05 * factor * limit, "{last:?}");
+        }
+    }
+}
+
+#[test]
+fn liquid_mass_is_conserved_and_the_record_is_consistent() {
+    let c = short(60.0, 90.0);
+    let r = run_trial(c.clone(), Some(2)).unwrap();
+    let o = &r.outcome;
+    println!("{o:?}");
+    assert!(o.total_water > 0.0);
+    for rec in &r.records {
+        assert_eq!(rec.m_l + rec.m_expelled, o.total_water, "t = {}", rec.time);
+        let v = rec.values();
+        for (k, x) in v.iter().enumerate() {
+            assert!(k == 18 || x.is_finite(), "channel {k} at {}", rec.time);
+        }
+        assert_eq!(v[19..].iter().sum::<f64>(), 1.0, "one-hot friction regime");
+        assert!(rec.v_res.is_some() == (rec.a_l + rec.a_r > 0.0), "v_res defined exactly with contact");
+    }
+    // Water removed per phase adds up to the change of retained water.
+    let removed: f64 = o.water_removed.iter().map(|(_, w)| w).sum();
+    assert!((removed - (o.initial_water - o.final_water)).abs() < 1e-12);
+    // Phases appear in order and the trial completes.
+    let phases: Vec<Phase> = r.records.iter().filter_map(|x| x.phase).collect();
+    assert!(phases.windows(2).all(|w| w[0] <= w[1]), "phases out of order");
+    assert!(o.lift_success && o.stable_squeeze, "{o:?}");
+}
+
+/// Water per phase in a saturated sponge. On the floor the water is supported and stays;
+/// clamping pushes some out; once lifted the sponge drains under gravity. The paper's Fig. 5
+/// finds lifting changes retained water little: at the default adhesion this model does not
+/// reproduce that (see the README's limitations), and this test pins what it does instead.
+#[test]
+fn saturated_sponge_keeps_water_on_the_floor_and_loses_it_to_clamping_and_drainage() {
+    let r = run_trial(short(150.0, 200.0), Some(2)).unwrap();
+    let o = &r.outcome;
+    let w = |name: &str| o.water_removed.iter().find(|(n, _)| n == name).map_or(0.0, |x| x.1);
+    println!("water removed (g): {:?}", o.water_removed.iter().map(|(n, x)| (n, x * 1e3)).collect::<Vec<_>>());
+    assert_eq!(w("settle") + w("close"), 0.0, "the resting sponge must hold its water");
+    assert!(w("ramp") + w("hold") > 0.0, "clamping must push water out");
+    assert!(w("lift") + w("waiting") > 0.0, "a lifted saturated sponge drains");
+    assert!(w("squeeze") > 0.0, "squeezing harder pushes more out");
+    assert!(o.final_water < o.initial_water && o.final_water > 0.5 * o.initial_water);
+}
+
+fn replay(mut t: Trial, n: usize) -> Vec<[f64; 23]> {
+    (0..n).map(|_| t.step().unwrap().values()).collect()
+}
+
+fn same(a: &[[f64; 23]], b: &[[f64; 23]]) -> bool {
+    a.iter().zip(b).all(|(x, y)| x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits()))
+}
+
+#[test]
+fn trial_is_deterministic_across_threads_and_saved_states() {
+    let mut c = short(60.0, 90.0);
+    c.seed = 7;
+    // Into the ramp, with contacts and anchors.
+    let mut a = Trial::new(c.clone(), Some(1)).unwrap();
+    let mut b = Trial::new(c.clone(), Some(2)).unwrap();
+    for _ in 0..260 {
+        let (x, y) = (a.step().unwrap().values(), b.step().unwrap().values());
+        assert!(
+            x.iter().zip(&y).all(|(p, q)| p.to_bits() == q.to_bits()),
+            "1 vs 2 threads differ at t = {}",
+            a.observation().time
+        );
+    }
+    assert!(a.phase() >= Phase::Ramp && !a.memory().is_empty(), "phase {:?}", a.phase());
+    let bytes = a.to_bytes();
+    let restored = Trial::from_bytes(&bytes, Some(2)).unwrap();
+    assert!(same(&replay(a, 40), &replay(restored, 40)), "restored state diverged");
+    // Different seeds give different initial states.
+    let mut c2 = c.clone();
+    c2.seed = 8;
+    let x = Trial::new(c2, Some(2)).unwrap().simulation().particles().x[0];
+    assert_ne!(x, b.simulation().particles().x[0]);
+    assert!(Trial::from_bytes(&bytes[..bytes.len() / 2], Some(1)).is_err());
+}
+
+#[test]
+fn external_actions_drive_the_gripper_and_bad_values_are_refused() {
+    let mut t = Trial::new(short(60.0, 90.0), Some(2)).unwrap();
+    assert!(t.set_action(Some(Action { force_target: 500.0, velocity: None })).is_err());
+    assert!(t.set_action(Some(Action { force_target: f64::NAN, velocity: None })).is_err());
+    // Open the pads at 2 cm/s from the start: the width grows, no contact is made.
+    t.set_action(Some(Action { force_target: 0.0, velocity: Some(-0.02) })).unwrap();
+    let w0 = t.observation().width;
+    for _ in 0..100 {
+        t.step().unwrap();
+    }
+    let o = t.observation();
+    assert!((o.width - w0 - 2.0 * 0.02 * 0.1).abs() < 1e-9, "width {} from {w0}", o.width);
+    assert_eq!(o.v_cmd, -0.02);
+    let e = TrialConfig::from_json(r#"{"hold_force": 900}"#).unwrap_err().to_string();
+    assert!(e.contains("hold_force") && e.contains("400"), "{e}");
+    let e = TrialConfig::from_json(r#"{"controller": {"ramp_tme": 1}}"#).unwrap_err().to_string();
+    assert!(e.contains("ramp_tme"), "{e}");
+}

@@ -1,0 +1,1 @@
+"""Subcommands of the ``rmi`` CLI, one module each."""
