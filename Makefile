@@ -29,7 +29,7 @@ $(VENV_PY):
 $(TOOLS_STAMP): pyproject.toml Makefile | $(VENV_PY)
 	$(VENV_PY) -m pip install --upgrade pip
 	$(VENV_PY) -m pip install 'maturin>=1.9.4,<2' pytest hypothesis 'numpy>=2' ruff mypy \
-		'torch>=2.4' 'safetensors>=0.4' 'gymnasium>=1.0' 'matplotlib>=3.8' 'polars>=2' 'tqdm>=4.66'
+		'torch>=2.4' 'safetensors>=0.4' 'gymnasium>=1.0' 'matplotlib>=3.8' 'polars>=2' 'tqdm>=4.66' 'ray>=2.30'
 	touch $@
 
 # `maturin develop` installs the runtime dependencies, copies the extension module into

@@ -1,0 +1,65 @@
+"""``rmi dataset``: build the learning dataset from run files, or describe a built one.
+
+``rmi dataset build --runs DIR --out DIR [--seed 0]`` (``rmi dataset --runs DIR --out DIR``
+is the same) and ``rmi dataset info DIR``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+
+def _build_args(p: argparse.ArgumentParser, required: bool) -> None:
+    p.add_argument("--runs", required=required, metavar="DIR", help="directory of run files")
+    p.add_argument("--out", required=required, metavar="DIR", help="dataset directory")
+    p.add_argument("--seed", type=int, default=0, help="split seed (default 0)")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Subcommands ``build`` and ``info``; bare options mean ``build``."""
+    _build_args(parser, required=False)
+    sub = parser.add_subparsers(dest="dataset_command", metavar="{build,info}")
+    b = sub.add_parser("build", help="resample runs to 20 ms, split, standardise, cache")
+    _build_args(b, required=True)
+    i = sub.add_parser("info", help="print counts and statistics of a built dataset")
+    i.add_argument("dir", metavar="DIR", help="dataset directory")
+    i.add_argument("--json", action="store_true", help="print the full JSON summary")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``build`` or ``info``; 0 on success, 1 on an error."""
+    from rmi_learn.dataset import build_dataset, describe
+
+    cmd = getattr(args, "dataset_command", None)
+    try:
+        if cmd == "info":
+            d = describe(args.dir)
+            if args.json:
+                print(json.dumps(d, indent=2))
+            else:
+                info = d["info"]
+                print(f"dataset {args.dir} (seed {info['seed']}, dt {info['dt']} s)")
+                print("counts: " + ", ".join(f"{k} {v}" for k, v in info["counts"].items()))
+                for key, v in d["by_split_and_size"].items():
+                    print(
+                        f"  {key:10s} runs {v['runs']:4d}  rows {v['rows']:7d}  "
+                        f"windows {v['windows']:7d}"
+                    )
+            return 0
+        if not args.runs or not args.out:
+            print("rmi dataset: give --runs DIR and --out DIR (or use `info DIR`)", file=sys.stderr)
+            return 1
+        out = build_dataset(args.runs, args.out, seed=args.seed)
+        info = json.loads((out / "dataset.json").read_text())
+        print(
+            f"dataset -> {out}: {info['counts']['kept']} of {info['counts']['run_files']} runs, "
+            + ", ".join(
+                f"{s} {v['runs']} runs / {v['rows']} rows" for s, v in info["splits"].items()
+            )
+        )
+        return 0
+    except (OSError, ValueError) as exc:
+        print(f"rmi dataset: {exc}", file=sys.stderr)
+        return 1
