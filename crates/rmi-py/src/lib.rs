@@ -1,13 +1,21 @@
 //! Python binding of the rmi SPH engine, imported as `rmi_sph._rmi_sph`.
 //!
 //! Kept thin on purpose: physics, validation and error texts live in the `rmi-sph` crate, and
-//! this crate only converts types and errors. The Python package `rmi_sph` re-exports it.
+//! this crate only converts types and errors (one module per concern: `config` for configs
+//! from Python, `convert` for observations/columns/outcomes, `sim` for the `Simulation`
+//! class, `run` for `run_trial`, `panic` keeps Rust panics out of Python, `errors` maps the
+//! core's errors to exceptions). The Python package `rmi_sph` re-exports it.
 
+mod config;
+mod convert;
 mod errors;
+mod panic;
+mod run;
+mod sim;
 
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyTuple};
 use rmi_sph::RmiError as CoreError;
 
 /// Same version as the Rust crates (one workspace version) and the Python distribution, which
@@ -29,7 +37,7 @@ fn engine_info(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
 
 /// Raises the exception that a core error of the given kind maps to (for testing the mapping).
 ///
-/// ``kind`` is one of ``"config"``, ``"unstable"``, ``"state"``, ``"io"``.
+/// ``kind`` is one of ``"config"``, ``"unstable"``, ``"state"``, ``"io"``, ``"panic"``.
 #[pyfunction]
 fn _raise_error(kind: &str) -> PyResult<()> {
     let error = match kind {
@@ -46,20 +54,122 @@ fn _raise_error(kind: &str) -> PyResult<()> {
         },
         "state" => CoreError::State("particle count 10 does not match 12".to_owned()),
         "io" => CoreError::Io(std::io::Error::new(std::io::ErrorKind::NotFound, "snapshot.bin not found")),
+        "panic" => return panic::into_py(panic::catch(|| -> rmi_sph::Result<()> { panic!("deliberate test panic") })),
         other => {
             return Err(PyValueError::new_err(format!(
-                "unknown error kind {other:?}; expected config, unstable, state or io"
+                "unknown error kind {other:?}; expected config, unstable, state, io or panic"
             )))
         }
     };
     Err(errors::to_pyerr(error))
 }
 
+/// Runs the scripted grasp-lift-squeeze trial to its end in Rust (GIL released, Ctrl-C
+/// honoured every few recorded rows) and returns its trajectory.
+///
+/// Parameters
+/// ----------
+/// config : dict | str | os.PathLike
+///     Trial configuration (see ``Simulation``).
+/// num_threads : int, optional
+///     Worker threads (results do not depend on it).
+/// record_every : int, optional
+///     Simulator steps per recorded row (default: the config's ``record_every``, 5).
+///
+/// Returns
+/// -------
+/// dict
+///     ``columns``: run-file columns, name -> 1-D numpy array (``time`` s, ``phase`` str,
+///     ``v_com_x/y/z`` m/s, ``gate_open`` bool, ``M_expelled`` kg, ``lift_height`` m, the 23
+///     y_t channels of ``OBSERVATION_NAMES``, ``F_target`` N, ``v_cmd`` m/s); one row at the
+///     start, one every ``record_every`` steps and one at the end, loads averaged over each
+///     interval. ``outcome``: dict as ``Simulation.outcome()``.
+///
+/// Raises
+/// ------
+/// ConfigError, SimulationUnstableError, StateError (trial exceeded its time limit),
+/// KeyboardInterrupt.
+#[pyfunction]
+#[pyo3(signature = (config, *, num_threads=None, record_every=None))]
+fn run_trial<'py>(
+    py: Python<'py>,
+    config: &Bound<'py, PyAny>,
+    num_threads: Option<usize>,
+    record_every: Option<u32>,
+) -> PyResult<Bound<'py, PyDict>> {
+    run::run_trial(py, config, num_threads, record_every)
+}
+
+/// A trial config (dict) of one of the paper's sponges.
+///
+/// Parameters
+/// ----------
+/// size_cm : int
+///     Sponge size: 8, 10 or 12 (cm), i.e. 8x8x18, 10x10x20 or 12x12x22 cm.
+/// porosity : float
+///     Porosity phi of the skeleton (-).
+/// hold_force, squeeze_force : float
+///     Holding and squeeze force targets (N).
+/// radius : float, default 0.005
+///     Particle radius r (m).
+/// seed : int, default 0
+///     Seed of the initial pore-water jitter.
+/// **overrides
+///     TrialConfig fields (``dt``, ``jitter``, ``record_every``, ``saturated``, and tables
+///     ``material``, ``gripper``, ``friction``, ``gate``, ``controller``, merged into the
+///     defaults) or ControllerParams fields (``settle_time``, ``ramp_time``, ``hold_time``,
+///     ``wait_time``, ...), which go under ``controller``.
+///
+/// Raises
+/// ------
+/// ConfigError
+///     Unknown override, wrong type or value out of range; ``err.field`` names it.
+#[pyfunction]
+#[pyo3(signature = (size_cm, porosity, hold_force, squeeze_force, radius=0.005, seed=0, **overrides))]
+#[allow(clippy::too_many_arguments)]
+fn trial_config<'py>(
+    py: Python<'py>,
+    size_cm: f64,
+    porosity: f64,
+    hold_force: f64,
+    squeeze_force: f64,
+    radius: f64,
+    seed: u64,
+    overrides: Option<&Bound<'py, PyDict>>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let cfg = config::trial_config(size_cm, porosity, hold_force, squeeze_force, radius, seed, overrides)?;
+    config::to_dict(py, &cfg)
+}
+
+/// The default trial configuration as a dict (every field, SI units).
+#[pyfunction]
+fn default_config(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
+    config::to_dict(py, &rmi_sph::TrialConfig::default())
+}
+
+/// Checks a trial configuration and returns it complete (defaults filled in) as a dict.
+///
+/// Raises ConfigError naming the first bad field.
+#[pyfunction]
+fn validate_config<'py>(py: Python<'py>, config: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
+    let cfg = config::extract(config)?;
+    config::to_dict(py, &cfg)
+}
+
 #[pymodule]
 fn _rmi_sph(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let py = m.py();
     m.add("__version__", VERSION)?;
+    m.add("OBSERVATION_NAMES", PyTuple::new(py, rmi_sph::observe::NAMES)?)?;
+    m.add("EXTRA_NAMES", PyTuple::new(py, convert::EXTRAS)?)?;
+    m.add("ACTION_NAMES", PyTuple::new(py, convert::ACTIONS)?)?;
     m.add_function(wrap_pyfunction!(engine_info, m)?)?;
     m.add_function(wrap_pyfunction!(_raise_error, m)?)?;
+    m.add_function(wrap_pyfunction!(run_trial, m)?)?;
+    m.add_function(wrap_pyfunction!(trial_config, m)?)?;
+    m.add_function(wrap_pyfunction!(default_config, m)?)?;
+    m.add_function(wrap_pyfunction!(validate_config, m)?)?;
+    m.add_class::<sim::PySimulation>()?;
     errors::register(m)?;
     Ok(())
 }

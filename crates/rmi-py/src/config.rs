@@ -1,0 +1,260 @@
+//! Trial configurations from Python: dicts, JSON text or JSON files, checked field by field
+//! against the shape of the default `TrialConfig` so that errors name the dotted field.
+//!
+//! Conversion only: ranges and physics checks are the core's `TrialConfig::validate`.
+
+use crate::errors::to_pyerr;
+use pyo3::exceptions::PyTypeError;
+use pyo3::prelude::*;
+use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
+use rmi_sph::presets::SPONGE_SIZES;
+use rmi_sph::{RmiError, TrialConfig};
+use serde_json::{Map, Number, Value};
+
+/// Converts a Python object (dict, list, tuple, number, bool, str, None, numpy scalar or
+/// array) into JSON; `path` names it in errors.
+pub fn to_value(obj: &Bound<'_, PyAny>, path: &str) -> PyResult<Value> {
+    if obj.is_none() {
+        return Ok(Value::Null);
+    }
+    if obj.is_instance_of::<PyBool>() {
+        return Ok(Value::Bool(obj.extract()?));
+    }
+    if obj.is_instance_of::<PyInt>() {
+        if let Ok(v) = obj.extract::<i64>() {
+            return Ok(Value::Number(v.into()));
+        }
+        if let Ok(v) = obj.extract::<u64>() {
+            return Ok(Value::Number(v.into()));
+        }
+        return Err(to_pyerr(RmiError::config(path, obj.to_string(), "an integer that fits in 64 bits")));
+    }
+    if obj.is_instance_of::<PyFloat>() {
+        let v: f64 = obj.extract()?;
+        return Number::from_f64(v)
+            .map(Value::Number)
+            .ok_or_else(|| to_pyerr(RmiError::config(path, v, "a finite number")));
+    }
+    if let Ok(s) = obj.cast::<PyString>() {
+        return Ok(Value::String(s.to_str()?.to_owned()));
+    }
+    if let Ok(d) = obj.cast::<PyDict>() {
+        let mut map = Map::new();
+        for (k, v) in d.iter() {
+            let key: String =
+                k.extract().map_err(|_| to_pyerr(RmiError::config(path, k.to_string(), "a table with string keys")))?;
+            let sub = join(path, &key);
+            map.insert(key, to_value(&v, &sub)?);
+        }
+        return Ok(Value::Object(map));
+    }
+    if obj.is_instance_of::<PyList>() || obj.is_instance_of::<PyTuple>() {
+        let mut out = Vec::new();
+        for (i, v) in obj.try_iter()?.enumerate() {
+            out.push(to_value(&v?, &format!("{path}[{i}]"))?);
+        }
+        return Ok(Value::Array(out));
+    }
+    // numpy scalars and arrays (and anything else with the same protocol).
+    if obj.hasattr("tolist")? {
+        let plain = obj.call_method0("tolist")?;
+        if !plain.is(obj) {
+            return to_value(&plain, path);
+        }
+    }
+    Err(PyTypeError::new_err(format!(
+        "config field `{}` has unsupported type {}; use numbers, bools, strings, lists and dicts",
+        if path.is_empty() { "<root>" } else { path },
+        obj.get_type().name()?
+    )))
+}
+
+fn join(path: &str, key: &str) -> String {
+    if path.is_empty() {
+        key.to_owned()
+    } else {
+        format!("{path}.{key}")
+    }
+}
+
+fn kind(v: &Value) -> &'static str {
+    match v {
+        Value::Null => "null",
+        Value::Bool(_) => "a bool",
+        Value::Number(_) => "a number",
+        Value::String(_) => "a string",
+        Value::Array(_) => "a list",
+        Value::Object(_) => "a table",
+    }
+}
+
+/// Overlays `given` on `default` (same shape), checking every key and type: unknown keys,
+/// wrong types and non-integral values of integer fields are errors naming the field.
+pub fn overlay(default: &Value, given: &Value, path: &str) -> Result<Value, RmiError> {
+    match (default, given) {
+        (Value::Object(d), Value::Object(g)) => {
+            let mut out = d.clone();
+            for (k, v) in g {
+                let sub = join(path, k);
+                let Some(dv) = d.get(k) else {
+                    let known: Vec<&str> = d.keys().map(String::as_str).collect();
+                    return Err(RmiError::config(sub, "(unknown field)", format!("one of: {}", known.join(", "))));
+                };
+                out.insert(k.clone(), overlay(dv, v, &sub)?);
+            }
+            Ok(Value::Object(out))
+        }
+        (Value::Object(_), other) => {
+            Err(RmiError::config(path, other.to_string(), format!("a table (dict), not {}", kind(other))))
+        }
+        (Value::Array(d), Value::Array(g)) => {
+            if d.len() != g.len() {
+                return Err(RmiError::config(path, given.to_string(), format!("a list of {} values", d.len())));
+            }
+            let items: Result<Vec<_>, _> =
+                d.iter().zip(g).enumerate().map(|(i, (dv, gv))| overlay(dv, gv, &format!("{path}[{i}]"))).collect();
+            Ok(Value::Array(items?))
+        }
+        (Value::Array(d), other) => {
+            Err(RmiError::config(path, other.to_string(), format!("a list of {} values", d.len())))
+        }
+        (Value::Number(dn), Value::Number(gn)) => {
+            if dn.is_f64() {
+                return Ok(Value::Number(Number::from_f64(gn.as_f64().unwrap_or(f64::NAN)).unwrap_or(gn.clone())));
+            }
+            // Integer field: accept integral floats (5.0), refuse fractions and negatives.
+            let x = gn.as_f64().unwrap_or(f64::NAN);
+            if gn.is_u64() {
+                return Ok(given.clone());
+            }
+            if x.fract() == 0.0 && (0.0..=u64::MAX as f64).contains(&x) {
+                return Ok(Value::Number((x as u64).into()));
+            }
+            Err(RmiError::config(path, gn.to_string(), "a non-negative integer"))
+        }
+        (Value::Number(_), other) => {
+            Err(RmiError::config(path, other.to_string(), format!("a number, not {}", kind(other))))
+        }
+        (Value::Bool(_), Value::Bool(_)) => Ok(given.clone()),
+        (Value::Bool(_), other) => Err(RmiError::config(path, other.to_string(), "true or false")),
+        (Value::String(_), Value::String(_)) => Ok(given.clone()),
+        (Value::String(_), other) => Err(RmiError::config(path, other.to_string(), "a string")),
+        // Optional fields (null by default) take whatever serde accepts.
+        (Value::Null, _) => Ok(given.clone()),
+    }
+}
+
+/// The default trial config as JSON.
+pub fn default_value() -> Value {
+    serde_json::to_value(TrialConfig::default()).expect("the default trial config serialises")
+}
+
+/// Builds and validates a `TrialConfig` from JSON overlaid on the defaults.
+pub fn from_value(given: &Value) -> Result<TrialConfig, RmiError> {
+    let merged = overlay(&default_value(), given, "")?;
+    let cfg: TrialConfig = serde_json::from_value(merged)
+        .map_err(|e| RmiError::config("trial", e.to_string(), "a table matching TrialConfig"))?;
+    cfg.validate()?;
+    Ok(cfg)
+}
+
+/// A trial config from a dict, a JSON file path (str or os.PathLike) or JSON text.
+pub fn extract(obj: &Bound<'_, PyAny>) -> PyResult<TrialConfig> {
+    let value = if obj.is_instance_of::<PyDict>() {
+        to_value(obj, "")?
+    } else {
+        let text = if let Ok(s) = obj.cast::<PyString>() {
+            let s = s.to_str()?;
+            if s.trim_start().starts_with('{') {
+                s.to_owned()
+            } else {
+                read(s)?
+            }
+        } else if obj.hasattr("__fspath__")? {
+            let p: String = obj.call_method0("__fspath__")?.extract()?;
+            read(&p)?
+        } else {
+            return Err(PyTypeError::new_err(format!(
+                "config must be a dict, a JSON string or a path to a JSON file, not {}",
+                obj.get_type().name()?
+            )));
+        };
+        serde_json::from_str(&text)
+            .map_err(|e| to_pyerr(RmiError::config("trial", e.to_string(), "valid JSON text of a TrialConfig")))?
+    };
+    from_value(&value).map_err(to_pyerr)
+}
+
+fn read(path: &str) -> PyResult<String> {
+    std::fs::read_to_string(path)
+        .map_err(|e| to_pyerr(RmiError::Io(std::io::Error::new(e.kind(), format!("{path}: {e}")))))
+}
+
+/// A config as a Python dict (through JSON, so it round-trips exactly).
+pub fn to_dict<'py>(py: Python<'py>, cfg: &TrialConfig) -> PyResult<Bound<'py, PyAny>> {
+    py.import("json")?.call_method1("loads", (cfg.to_json(),))
+}
+
+/// Names of the `ControllerParams` fields (accepted as top-level overrides).
+fn controller_fields(default: &Value) -> Vec<String> {
+    default.get("controller").and_then(Value::as_object).map(|m| m.keys().cloned().collect()).unwrap_or_default()
+}
+
+/// `trial_config`: a paper sponge (size 8, 10 or 12 cm) with overrides.
+pub fn trial_config(
+    size_cm: f64,
+    porosity: f64,
+    hold_force: f64,
+    squeeze_force: f64,
+    radius: f64,
+    seed: u64,
+    overrides: Option<&Bound<'_, PyDict>>,
+) -> PyResult<TrialConfig> {
+    let Some(k) = [8.0, 10.0, 12.0].iter().position(|s| *s == size_cm) else {
+        return Err(to_pyerr(RmiError::config("size_cm", size_cm, "one of the paper's sizes 8, 10, 12 (cm)")));
+    };
+    let size = SPONGE_SIZES[k];
+    let default = default_value();
+    let ctrl = controller_fields(&default);
+    let mut given = Map::new();
+    let num = |x: f64, name: &str| {
+        Number::from_f64(x).map(Value::Number).ok_or_else(|| to_pyerr(RmiError::config(name, x, "a finite number")))
+    };
+    given.insert("size".into(), Value::Array(size.iter().map(|s| Value::from(*s)).collect()));
+    given.insert("porosity".into(), num(porosity, "porosity")?);
+    given.insert("hold_force".into(), num(hold_force, "hold_force")?);
+    given.insert("squeeze_force".into(), num(squeeze_force, "squeeze_force")?);
+    given.insert("particle_radius".into(), num(radius, "radius")?);
+    given.insert("seed".into(), Value::from(seed));
+    let mut controller = Map::new();
+    if let Some(o) = overrides {
+        for (k, v) in o.iter() {
+            let key: String = k.extract()?;
+            let value = to_value(&v, &key)?;
+            if ctrl.contains(&key) {
+                controller.insert(key, value);
+            } else if default.get(&key).is_some() {
+                if key == "controller" {
+                    if let Value::Object(m) = &value {
+                        for (ck, cv) in m {
+                            controller.entry(ck.clone()).or_insert_with(|| cv.clone());
+                        }
+                        continue;
+                    }
+                }
+                given.insert(key, value);
+            } else {
+                return Err(to_pyerr(RmiError::config(
+                    key,
+                    "(unknown override)",
+                    "a TrialConfig field (dt, jitter, record_every, saturated, material, gripper, friction, gate, \
+                     controller, ...) or a ControllerParams field (settle_time, ramp_time, hold_time, ...)",
+                )));
+            }
+        }
+    }
+    if !controller.is_empty() {
+        given.insert("controller".into(), Value::Object(controller));
+    }
+    from_value(&Value::Object(given)).map_err(to_pyerr)
+}

@@ -1,0 +1,425 @@
+"""The Python binding `rmi_sph`: configs, Simulation, run_trial, state, threads, errors.
+
+Scenes are tiny (8 cm sponge of porosity 0.8 at r = 10 mm, about 250 dynamic particles,
+dt = 2 ms, short phases, a squeeze to 150 N that expels some water): a whole trial takes a
+few seconds on a shared 2-core machine.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import rmi_sph
+from rmi_learn.runs import RUN_COLUMNS, read_run, write_run
+from rmi_learn.schema import ACTIONS, EXTRAS, OBS, PHASES
+
+TINY: dict[str, Any] = dict(
+    dt=2e-3,
+    settle_time=0.05,
+    ramp_time=0.1,
+    hold_time=0.1,
+    wait_time=0.05,
+    squeeze_ramp_time=0.1,
+    squeeze_hold_time=0.1,
+)
+
+
+def tiny(**kw: Any) -> dict[str, Any]:
+    kw = {**TINY, **kw}
+    return rmi_sph.trial_config(8, 0.8, 20.0, 150.0, 0.01, 0, **kw)
+
+
+@pytest.fixture(scope="module")
+def cfg() -> dict[str, Any]:
+    return tiny()
+
+
+@pytest.fixture(scope="module")
+def trial(cfg: dict[str, Any]) -> dict[str, Any]:
+    return rmi_sph.run_trial(cfg, num_threads=1)
+
+
+def same(a: np.ndarray, b: np.ndarray) -> bool:
+    """Bit-identical, NaN equal to NaN."""
+    a, b = np.asarray(a), np.asarray(b)
+    return bool(np.array_equal(a, b, equal_nan=a.dtype.kind == "f"))
+
+
+# --------------------------------------------------------------------------------------
+# Configs
+
+
+def test_names_match_schema() -> None:
+    assert rmi_sph.OBSERVATION_NAMES == OBS
+    assert rmi_sph.EXTRA_NAMES == EXTRAS
+    assert rmi_sph.ACTION_NAMES == ACTIONS
+
+
+def test_default_and_trial_config(tmp_path: Path) -> None:
+    d = rmi_sph.default_config()
+    assert {"size", "porosity", "dt", "controller", "material", "gate"} <= set(d)
+    for size_cm, x in [(8, 0.08), (10, 0.10), (12, 0.12)]:
+        c = rmi_sph.trial_config(size_cm, 0.5, 30.0, 60.0)
+        assert c["size"][0] == pytest.approx(x)
+        assert (c["porosity"], c["hold_force"], c["squeeze_force"]) == (0.5, 30.0, 60.0)
+        assert c["particle_radius"] == 0.005 and c["seed"] == 0
+    c = rmi_sph.trial_config(
+        8, 0.6, 20, 40, 0.01, 3, settle_time=0.07, material={"youngs_modulus": 3e5}, dt=2e-3
+    )
+    assert c["controller"]["settle_time"] == 0.07
+    assert c["controller"]["ramp_time"] == d["controller"]["ramp_time"]
+    assert c["material"]["youngs_modulus"] == 3e5
+    assert c["material"]["permeability"] == d["material"]["permeability"]
+    assert (c["seed"], c["dt"]) == (3, 2e-3)
+    # Every accepted form of a config gives the same complete config.
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps(c))
+    assert rmi_sph.validate_config(c) == c
+    assert rmi_sph.validate_config(json.dumps(c)) == c
+    assert rmi_sph.validate_config(str(path)) == c
+    assert rmi_sph.validate_config(path) == c
+    assert rmi_sph.validate_config({"porosity": np.float64(0.5)})["porosity"] == 0.5
+    # Integral floats are accepted for integer fields.
+    assert rmi_sph.validate_config({"record_every": 4.0})["record_every"] == 4
+
+
+@pytest.mark.parametrize(
+    ("make", "field"),
+    [
+        (lambda: rmi_sph.trial_config(9, 0.6, 20, 40), "size_cm"),
+        (lambda: rmi_sph.trial_config(8, 0.99, 20, 40), "porosity"),
+        (lambda: rmi_sph.trial_config(8, 0.6, -1, 40), "hold_force"),
+        (lambda: rmi_sph.trial_config(8, 0.6, 20, 40, bogus=1), "bogus"),
+        (lambda: rmi_sph.trial_config(8, 0.6, 20, 40, settle_time=-1), "controller.settle_time"),
+        (lambda: rmi_sph.trial_config(8, 0.6, 20, 40, material={"porosty": 1}), "material.porosty"),
+        (lambda: rmi_sph.trial_config(8, 0.6, 20, 40, gate={"k_stable": 2.5}), "gate.k_stable"),
+        (lambda: rmi_sph.validate_config({"dt": "fast"}), "dt"),
+        (lambda: rmi_sph.validate_config({"size": [0.1, 0.1]}), "size"),
+        (lambda: rmi_sph.validate_config({"controller": 3}), "controller"),
+        (lambda: rmi_sph.validate_config({"dt": float("nan")}), "dt"),
+        (lambda: rmi_sph.validate_config({"saturated": 1}), "saturated"),
+        (lambda: rmi_sph.Simulation({"friction": {"mu_kinetic": 5.0}}), "friction.mu_kinetic"),
+        (lambda: rmi_sph.run_trial({"jitter": 0.9}), "jitter"),
+        (lambda: rmi_sph.validate_config("{not json"), "trial"),
+    ],
+)
+def test_bad_config_names_the_field(make: Any, field: str) -> None:
+    with pytest.raises(rmi_sph.ConfigError) as info:
+        make()
+    assert info.value.field == field
+    assert field in str(info.value)
+    assert isinstance(info.value, ValueError)
+
+
+def test_config_type_errors(tmp_path: Path) -> None:
+    with pytest.raises(TypeError):
+        rmi_sph.Simulation(42)  # type: ignore[arg-type]
+    with pytest.raises(FileNotFoundError):
+        rmi_sph.Simulation(str(tmp_path / "missing.json"))
+
+
+_CONTROLLER_FIELDS = sorted(rmi_sph.default_config()["controller"])
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    name=st.sampled_from(_CONTROLLER_FIELDS),
+    value=st.floats(max_value=-1e-3, allow_nan=False, allow_infinity=False),
+)
+def test_property_negative_controller_values_are_refused(name: str, value: float) -> None:
+    with pytest.raises(rmi_sph.ConfigError) as info:
+        rmi_sph.validate_config({"controller": {name: value}})
+    assert info.value.field == f"controller.{name}"
+
+
+@settings(max_examples=40, deadline=None)
+@given(key=st.text(min_size=1, max_size=12))
+def test_property_unknown_keys_are_refused(key: str) -> None:
+    defaults = rmi_sph.default_config()
+    if key in defaults or key in defaults["controller"]:
+        return
+    with pytest.raises(rmi_sph.ConfigError) as info:
+        rmi_sph.trial_config(8, 0.6, 20, 40, **{key: 1.0})  # type: ignore[arg-type]
+    assert info.value.field == key
+    with pytest.raises(rmi_sph.ConfigError) as info:
+        rmi_sph.validate_config({"gripper": {key: 1.0}})
+    assert info.value.field == f"gripper.{key}"
+
+
+# --------------------------------------------------------------------------------------
+# Simulation
+
+
+def test_simulation_round_trip(cfg: dict[str, Any]) -> None:
+    sim = rmi_sph.Simulation(cfg, num_threads=1)
+    assert sim.config == cfg
+    assert (sim.time, sim.step_count, sim.phase, sim.finished, sim.failure) == (
+        0.0,
+        0,
+        "settle",
+        False,
+        None,
+    )
+    assert sim.dt == cfg["dt"] and sim.num_threads == 1 and sim.time_limit > 1.0
+    assert sim.step() == 1
+    assert sim.step(59) == 59
+    assert sim.step_count == 60 and sim.time == pytest.approx(0.12)
+    assert sim.phase in PHASES and "Simulation(" in repr(sim)
+    obs = sim.observation()
+    assert list(obs)[:23] == list(OBS)
+    assert set(EXTRAS) | set(ACTIONS) <= set(obs)
+    assert isinstance(obs["phase"], str) and isinstance(obs["gate_open"], bool)
+    vec = sim.observation_vector()
+    assert vec.shape == (23,) and vec.dtype == np.float64
+    assert same(vec, np.array([obs[n] for n in OBS]))
+    rec = sim.take_record()
+    assert same(
+        np.array([rec[n] for n in OBS if n not in ("F_L", "F_R", "F_meas", "alpha_F")]),
+        np.array([obs[n] for n in OBS if n not in ("F_L", "F_R", "F_meas", "alpha_F")]),
+    )
+
+    fluid, solid, bnd = (sim.particles(k) for k in ("fluid", "solid", "boundary"))
+    out = sim.outcome()
+    nf, ns = out["n_fluid"], out["n_solid"]
+    assert fluid["positions"].shape == (nf, 3) and solid["positions"].shape == (ns, 3)
+    for d, n in [(fluid, nf), (solid, ns)]:
+        for key in ("velocities", "mass", "density", "pressure", "porosity", "id"):
+            assert d[key].shape[0] == n
+        assert np.all(np.isfinite(d["density"])) and np.all(d["density"] > 0)
+    assert "saturation" in solid and "saturation" not in fluid
+    assert np.all((solid["saturation"] >= 0) & (solid["saturation"] <= 1))
+    # Water under its own weight carries a positive pressure of the right order (Pa).
+    assert fluid["pressure"].max() > 0 and fluid["pressure"].max() < 1e5
+    assert np.sum(fluid["mass"]) == pytest.approx(out["total_water"])
+    bodies = sim.bodies()
+    assert [b["name"] for b in bodies] == ["floor", "pad_left", "pad_right"]
+    assert bnd["positions"].shape[0] == bnd["body"].shape[0] == bnd["volume"].shape[0]
+    assert set(np.unique(bnd["body"])) == {0, 1, 2}
+    with pytest.raises(ValueError, match="unknown particle kind"):
+        sim.particles("gas")  # type: ignore[arg-type]
+
+    assert sim.action is None
+    sim.set_action(15.0, 0.01)
+    assert sim.action == (15.0, 0.01)
+    sim.step(3)
+    assert sim.observation()["F_target"] == 15.0
+    sim.set_action(12.0)
+    assert sim.action == (12.0, None)
+    sim.clear_action()
+    assert sim.action is None
+    for bad, field in [
+        ((-1.0,), "force_target"),
+        ((10.0, 2.0), "velocity_command"),
+        ((float("nan"),), "force_target"),
+    ]:
+        with pytest.raises(rmi_sph.ConfigError) as info:
+            sim.set_action(*bad)
+        assert info.value.field == field
+    assert set(out) == {
+        "lift_success", "stable_squeeze", "failure", "gate_opened_at", "water_removed",
+        "initial_water", "final_water", "total_water", "sim_time", "steps", "wall_s",
+        "n_fluid", "n_solid",
+    }  # fmt: skip
+    with pytest.raises(rmi_sph.StateError):
+        sim.records()
+
+
+def test_threads_give_bit_identical_results(cfg: dict[str, Any]) -> None:
+    sims = [rmi_sph.Simulation(cfg, num_threads=k) for k in (1, 2)]
+    for _ in range(4):
+        for s in sims:
+            s.step(25)
+        a, b = (s.observation_vector() for s in sims)
+        assert same(a, b)
+    assert sims[0].phase not in ("settle", "close")  # compared through contact
+    for kind in ("fluid", "solid"):
+        pa, pb = (s.particles(kind) for s in sims)
+        for key in pa:
+            assert same(pa[key], pb[key]), (kind, key)
+
+
+def _continue(sim: rmi_sph.Simulation, n: int = 30) -> tuple[np.ndarray, np.ndarray]:
+    sim.step(n)
+    return sim.observation_vector(), sim.particles("solid")["positions"]
+
+
+def test_state_and_pickle_continue_identically(cfg: dict[str, Any], tmp_path: Path) -> None:
+    sim = rmi_sph.Simulation(cfg, num_threads=1)
+    sim.step(70)  # in contact: friction memory, controller and gate state matter
+    state = sim.get_state()
+    assert isinstance(state, bytes)
+    pickled = pickle.loads(pickle.dumps(sim))
+    from_state = rmi_sph.Simulation.from_state(state, num_threads=2)
+    sim.save(tmp_path / "s.bin")
+    loaded = rmi_sph.Simulation.load(tmp_path / "s.bin", num_threads=1)
+    other = rmi_sph.Simulation(tiny(jitter=0.1), num_threads=1)
+    other.set_state(state)
+    assert other.config == cfg and other.time == sim.time and other.phase == sim.phase
+    ref = _continue(sim)
+    for s in (pickled, from_state, loaded, other):
+        got = _continue(s)
+        assert same(got[0], ref[0]) and same(got[1], ref[1])
+    with pytest.raises(rmi_sph.StateError):
+        sim.set_state(b"not a state")
+    with pytest.raises(rmi_sph.StateError):
+        sim.set_state(state[:100])
+    with pytest.raises(FileNotFoundError):
+        rmi_sph.Simulation.load(tmp_path / "missing.bin")
+
+
+def test_step_releases_the_gil(cfg: dict[str, Any]) -> None:
+    sim = rmi_sph.Simulation(cfg, num_threads=1)
+    sim.step(5)
+    ticks = 0
+    stop = threading.Event()
+
+    def spin() -> None:
+        nonlocal ticks
+        while not stop.is_set():
+            ticks += 1
+            time.sleep(0.001)
+
+    thread = threading.Thread(target=spin)
+    thread.start()
+    t0 = time.perf_counter()
+    sim.step(100)
+    elapsed = time.perf_counter() - t0
+    stop.set()
+    thread.join()
+    # The thread sleeps 1 ms per tick; with the GIL held it would hardly run at all.
+    assert ticks >= max(5, int(0.2 * elapsed / 0.0011)), (ticks, elapsed)
+
+
+def _interrupt_after(seconds: float) -> Any:
+    def handler(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    old = signal.signal(signal.SIGALRM, handler)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    return old
+
+
+def test_ctrl_c_interrupts_step_and_run_trial(cfg: dict[str, Any]) -> None:
+    sim = rmi_sph.Simulation(cfg, num_threads=1)
+    old = _interrupt_after(0.2)
+    try:
+        t0 = time.perf_counter()
+        with pytest.raises(KeyboardInterrupt):
+            sim.step(10**7)
+        assert time.perf_counter() - t0 < 5.0
+        assert 0 < sim.step_count < 10**7
+        long = tiny(settle_time=50.0)
+        _interrupt_after(0.2)
+        t0 = time.perf_counter()
+        with pytest.raises(KeyboardInterrupt):
+            rmi_sph.run_trial(long, num_threads=1)
+        assert time.perf_counter() - t0 < 5.0
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def test_panics_become_rmi_errors() -> None:
+    with pytest.raises(rmi_sph.RmiError, match="panic"):
+        rmi_sph._raise_error("panic")
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
+def test_forked_child_rebuilds_its_thread_pool(cfg: dict[str, Any]) -> None:
+    sim = rmi_sph.Simulation(cfg, num_threads=2)
+    sim.step(10)
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # child: the parent's rayon workers do not exist here
+        try:
+            sim.step(20)
+            os.write(w, sim.observation_vector().tobytes())
+        finally:
+            os._exit(0)
+    os.close(w)
+    with os.fdopen(r, "rb") as f:
+        data = f.read()
+    os.waitpid(pid, 0)
+    sim.step(20)
+    assert same(np.frombuffer(data, dtype=np.float64), sim.observation_vector())
+
+
+# --------------------------------------------------------------------------------------
+# run_trial and recording
+
+
+def test_run_trial_columns_follow_the_contract(
+    trial: dict[str, Any], cfg: dict[str, Any], tmp_path: Path
+) -> None:
+    cols, out = trial["columns"], trial["outcome"]
+    assert tuple(cols) == RUN_COLUMNS
+    n = len(cols["time"])
+    assert n > 10 and all(len(v) == n for v in cols.values())
+    assert cols["phase"].dtype.kind == "U" and cols["gate_open"].dtype == np.bool_
+    for name, v in cols.items():
+        if name in ("phase", "gate_open"):
+            continue
+        assert v.dtype == np.float64, name
+        if name != "v_res":
+            assert np.all(np.isfinite(v)), name
+    assert np.all(np.diff(cols["time"]) > 0)
+    # v_res is NaN exactly where no skeleton particle touches a pad.
+    assert np.all(np.isnan(cols["v_res"]) == (cols["r_none"] == 1.0))
+    assert set(cols["phase"]) <= set(PHASES)
+    assert list(dict.fromkeys(cols["phase"])) == [p for p in PHASES if p in set(cols["phase"])]
+    # Liquid mass is conserved: retained + expelled = the water present at the start.
+    assert cols["M_expelled"][-1] > 0.01  # the squeeze expelled water (kg)
+    total = cols["M_L"] + cols["M_expelled"]
+    np.testing.assert_allclose(total, out["total_water"], rtol=1e-12)
+    assert out["initial_water"] == cols["M_L"][0] and out["final_water"] == cols["M_L"][-1]
+    assert out["lift_success"] and out["stable_squeeze"] and out["failure"] is None
+    assert list(out["water_removed"]) == [p for p in PHASES if p != "done"]
+    assert sum(out["water_removed"].values()) == pytest.approx(
+        out["initial_water"] - out["final_water"], abs=1e-12
+    )
+    assert out["steps"] == round(out["sim_time"] / cfg["dt"])
+    # The columns are a valid run file.
+    params = {"size_cm": 8, "porosity": 0.8, "F_hold": 20.0, "F_squeeze": 150.0, "seed": 0}
+    path = write_run(tmp_path / "run.parquet", cols, cfg, params, out)
+    df, meta = read_run(path)
+    assert df.height == n and meta["outcome"]["final_water"] == out["final_water"]
+
+
+def test_record_every_override(cfg: dict[str, Any]) -> None:
+    short = dict(cfg, controller=dict(cfg["controller"], squeeze_hold_time=0.0))
+    a = rmi_sph.run_trial(short, num_threads=1, record_every=25)
+    assert np.allclose(np.diff(a["columns"]["time"])[:-1], 25 * cfg["dt"])
+    with pytest.raises(rmi_sph.ConfigError, match="record_every"):
+        rmi_sph.run_trial(short, record_every=0)
+
+
+def test_stepping_with_recording_equals_run_trial(
+    trial: dict[str, Any], cfg: dict[str, Any]
+) -> None:
+    sim = rmi_sph.Simulation(cfg, num_threads=2, record=True)
+    with pytest.raises(rmi_sph.StateError):
+        sim.take_record()
+    while not sim.finished:
+        sim.step(37, stop_at_finish=True)
+    assert sim.step(5, stop_at_finish=True) == 0
+    cols = sim.records()
+    assert tuple(cols) == RUN_COLUMNS
+    for name in RUN_COLUMNS:
+        assert same(cols[name], trial["columns"][name]), name
+    out = sim.outcome()
+    for key in ("lift_success", "stable_squeeze", "final_water", "steps", "water_removed"):
+        assert out[key] == trial["outcome"][key]
+    sim.records(clear=True)
+    assert len(sim.records()["time"]) == 0
