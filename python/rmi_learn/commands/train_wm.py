@@ -1,0 +1,392 @@
+"""``rmi train-wm``: train one world model (Baseline, State-GRU-WM, AC-GRU-WM, Linear-ARX,
+AC-MLP-WM or the causal Transformer W_T) on a built dataset.
+
+    rmi train-wm --model ac-gru --data DATASET --out RUN [--size 8|10|12]
+                 [--state-groups LS|LS+G|LS+G+C|ALL] [--shuffle-actions] [--epochs N]
+                 [--seed S] [--resume] [--debug]
+
+The run directory gets config.json (model architecture, training settings, data path, size,
+state groups, shuffle flag and the dataset's standardisation statistics), model.safetensors
+(selected weights), metrics.jsonl, summary.json and, for gradient-trained models,
+train_state.pt for ``--resume``. Load the result with ``rmi_learn.models.load(RUN)``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+MODEL_CHOICES = ("baseline", "state-gru", "ac-gru", "arx", "ac-mlp", "transformer")
+GROUP_CHOICES = ("LS", "LS+G", "LS+G+C", "ALL")
+
+#: Per-model optimisation defaults (paper Sec. IV, supplement S3).
+DEFAULTS: dict[str, dict[str, Any]] = {
+    "state-gru": {"lr": 1e-3, "optimizer": "adam", "select": "val_water_mae_g@64"},
+    "ac-gru": {"lr": 1e-3, "optimizer": "adam", "select": "val_water_mae_g@64"},
+    "ac-mlp": {"lr": 1e-3, "optimizer": "adam", "select": "val_water_mae_g@64"},
+    "transformer": {
+        "lr": 3e-4,
+        "optimizer": "adamw",
+        "weight_decay": 1e-2,
+        "select": "val_water_mae_g_mean",
+        "water_weight": 8.0,
+    },
+}
+#: Debug mode: windows kept from each split, batch size, teacher-forcing decay epochs.
+DEBUG_TRAIN_WINDOWS = 256
+DEBUG_VAL_WINDOWS = 32
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``rmi train-wm``."""
+    parser.add_argument("--model", required=True, choices=MODEL_CHOICES)
+    parser.add_argument("--data", required=True, metavar="DIR", help="built dataset directory")
+    parser.add_argument("--out", required=True, metavar="DIR", help="run output directory")
+    parser.add_argument(
+        "--size",
+        type=int,
+        choices=(8, 10, 12),
+        default=None,
+        help="train on one sponge size (cm); default: all sizes",
+    )
+    parser.add_argument(
+        "--state-groups",
+        default="ALL",
+        choices=GROUP_CHOICES,
+        help="input state groups (paper Eq. 7); default ALL",
+    )
+    parser.add_argument(
+        "--shuffle-actions",
+        action="store_true",
+        help="pair each history with an action chunk from another run",
+    )
+    parser.add_argument(
+        "--model-arg",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="architecture override passed to the model constructor, e.g. d_model=128 "
+        "(JSON value; repeatable); defaults follow the paper",
+    )
+    parser.add_argument("--epochs", type=int, default=40, help="maximum epochs (default 40)")
+    parser.add_argument("--patience", type=int, default=8, help="early-stopping patience")
+    parser.add_argument(
+        "--tf-epochs",
+        type=int,
+        default=20,
+        help="teacher forcing decays 1 -> 0 over this many epochs",
+    )
+    parser.add_argument(
+        "--water-weight",
+        type=float,
+        default=None,
+        help="loss weight of the retained-water channel (default: 8 for the Transformer, "
+        "1 otherwise, as in the paper)",
+    )
+    parser.add_argument("--batch-size", type=int, default=128)
+    parser.add_argument(
+        "--steps-per-epoch",
+        type=int,
+        default=None,
+        help="cap the optimiser steps per epoch (each epoch then sees a fresh random subset "
+        "of the windows); default: every window once",
+    )
+    parser.add_argument("--lr", type=float, default=None, help="learning rate (model default)")
+    parser.add_argument(
+        "--val-windows",
+        type=int,
+        default=4096,
+        help="validate on at most this many evenly spaced windows",
+    )
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--deterministic", action="store_true")
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument(
+        "--threads", type=int, default=1, help="torch CPU threads (default 1: the cores are shared)"
+    )
+    parser.add_argument("--resume", action="store_true", help="continue the run in --out")
+    parser.add_argument("--debug", action="store_true", help="tiny run that takes seconds")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Train as configured by ``args``; 0 on success, 1 on a user error."""
+    import torch
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    try:
+        summary = train(
+            model=args.model,
+            model_args=_parse_model_args(args.model_arg),
+            data=args.data,
+            out=args.out,
+            size_cm=args.size,
+            state_groups=args.state_groups,
+            shuffle_actions=args.shuffle_actions,
+            epochs=args.epochs,
+            patience=args.patience,
+            tf_epochs=args.tf_epochs,
+            batch_size=args.batch_size,
+            steps_per_epoch=args.steps_per_epoch,
+            water_weight=args.water_weight,
+            lr=args.lr,
+            val_windows=args.val_windows,
+            seed=args.seed,
+            deterministic=args.deterministic,
+            device=args.device,
+            resume=args.resume,
+            debug=args.debug,
+            progress=not args.no_progress,
+        )
+    except (FileExistsError, FileNotFoundError, ValueError, TypeError) as exc:
+        print(f"rmi train-wm: {exc}", file=sys.stderr)
+        return 1
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
+def _parse_model_args(items: list[str]) -> dict[str, Any]:
+    """``["d_model=128", "dropout=0.2"]`` -> ``{"d_model": 128, "dropout": 0.2}``."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--model-arg expects KEY=VALUE, got {item!r}")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def _subset(ws: Any, n: int, seed: int) -> Any:
+    import numpy as np
+
+    from rmi_learn.models.common import Subset
+
+    if len(ws) <= n:
+        return ws
+    idx = np.sort(np.random.default_rng([seed, 17]).choice(len(ws), n, replace=False))
+    return Subset(ws, idx)
+
+
+def train(
+    model: str,
+    data: str | Path,
+    out: str | Path,
+    *,
+    size_cm: int | None = None,
+    state_groups: str = "ALL",
+    shuffle_actions: bool = False,
+    epochs: int = 40,
+    patience: int | None = 8,
+    tf_epochs: int = 20,
+    batch_size: int = 128,
+    steps_per_epoch: int | None = None,
+    water_weight: float | None = None,
+    lr: float | None = None,
+    val_windows: int | None = 4096,
+    seed: int = 0,
+    deterministic: bool = False,
+    device: str = "cpu",
+    resume: bool = False,
+    debug: bool = False,
+    progress: bool = True,
+    model_args: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Train one world model into ``out`` and return the run summary (see module doc).
+
+    Gradient-trained models use :class:`rmi_learn.training.Trainer` with the world-model loss
+    (gamma 0.98, lambda_c = lambda_f = 0.2; Transformer: water weight 8), teacher forcing
+    decaying linearly from 1 to 0 over ``tf_epochs`` epochs for the recurrent decoders (whose
+    early-stopping patience counts only epochs after that decay), and checkpoint selection on
+    validation free-rollout water MAE (g) at 1.28 s (Transformer: mean over
+    0.16/0.32/0.64/1.28 s). Linear-ARX is fitted in closed form; the Baseline only
+    writes its config. ``model_args`` overrides constructor arguments (e.g. ``hidden``,
+    ``d_model``); an unknown name raises TypeError.
+    """
+    import torch
+
+    from rmi_learn.dataset import load_dataset
+    from rmi_learn.models import build
+    from rmi_learn.models.common import N_Z, WATER, ShuffledActions, wm_loss
+    from rmi_learn.training import TrainConfig, Trainer, count_parameters, seed_everything
+    from rmi_learn.wm_eval import evaluate_rollouts
+
+    if model not in MODEL_CHOICES:
+        raise ValueError(f"unknown model {model!r}")
+    if model in ("baseline", "arx") and state_groups != "ALL":
+        raise ValueError(f"--state-groups applies to learned models, not {model}")
+    out = Path(out)
+    ds = load_dataset(data)
+    stats = ds.stats
+    train_ws: Any = ds.windows("train", size_cm=size_cm)
+    val_ws: Any = ds.windows("val", size_cm=size_cm)
+    if len(train_ws) == 0:
+        raise ValueError(f"no training windows in {data} (size {size_cm})")
+    if shuffle_actions:
+        train_ws = ShuffledActions(train_ws, seed=seed)
+        val_ws = ShuffledActions(val_ws, seed=seed + 1)
+    if debug:
+        train_ws = _subset(train_ws, DEBUG_TRAIN_WINDOWS, seed)
+        val_ws = _subset(val_ws, DEBUG_VAL_WINDOWS, seed)
+        tf_epochs = 1
+        batch_size = min(batch_size, 8)
+    z_std = stats.z_std
+
+    seed_everything(seed, deterministic)
+    kw: dict[str, Any] = {"kind": model, **(model_args or {})}
+    if model != "baseline" and model != "arx":
+        kw["state_groups"] = state_groups
+    net = build(kw)
+    extra: dict[str, Any] = {
+        "data": str(Path(data).resolve()),
+        "size_cm": size_cm,
+        "state_groups": state_groups,
+        "shuffle_actions": shuffle_actions,
+        "seed": seed,
+        "debug": debug,
+        "history": train_ws.history if hasattr(train_ws, "history") else None,
+        "horizon": train_ws.horizon if hasattr(train_ws, "horizon") else None,
+        "n_train": len(train_ws),
+        "n_val": len(val_ws),
+        "stats": stats.to_json(),
+    }
+
+    def validate(m: torch.nn.Module, state: Any = None) -> dict[str, float]:
+        if len(val_ws) == 0:
+            return {"val_water_mae_g@64": float("nan"), "val_water_mae_g_mean": float("nan")}
+        r = evaluate_rollouts(m, val_ws, z_std, max_windows=val_windows, device=device)
+        return {f"val_{k}": v for k, v in r.items()}
+
+    if not net.trainable:
+        return _closed_form(net, model, out, train_ws, validate, extra, resume)
+
+    d = DEFAULTS[model]
+    extra["tf_epochs"] = tf_epochs
+    if water_weight is None:
+        water_weight = float(d.get("water_weight", 1.0))
+    extra["water_weight"] = water_weight
+    cw = torch.ones(N_Z)
+    cw[WATER] = water_weight
+    cfg = TrainConfig(
+        epochs=epochs,
+        batch_size=batch_size,
+        max_steps_per_epoch=steps_per_epoch,
+        lr=lr if lr is not None else d["lr"],
+        optimizer=d["optimizer"],
+        weight_decay=d.get("weight_decay", 0.0),
+        grad_clip=1.0,
+        patience=patience,
+        # Early stopping waits for the end of the teacher-forcing decay: before it, the
+        # free-rollout validation metric judges a model that is still trained on fed targets.
+        min_epochs=tf_epochs if net.recurrent else 0,
+        select_metric=d["select"],
+        select_mode="min",
+        seed=seed,
+        deterministic=deterministic,
+        device=device,
+        debug=debug,
+        progress=progress,
+    )
+
+    def loss_fn(m: Any, batch: dict[str, torch.Tensor], state: Any) -> Any:
+        tf = max(0.0, 1.0 - state.epoch / tf_epochs) if (m.recurrent and tf_epochs > 0) else 0.0
+        o = m(
+            batch["hist"],
+            batch["hist_mask"],
+            batch["actions"],
+            teacher=batch if tf > 0 else None,
+            tf_prob=tf,
+        )
+        loss, logs = wm_loss(
+            o, batch, channel_weight=cw.to(o["z"].device), z_keep=m.z_keep, classify=m.classify
+        )
+        logs["tf_prob"] = tf
+        return loss, logs
+
+    trainer = Trainer(
+        net,
+        loss_fn,
+        train_ws,
+        out,
+        cfg,
+        evaluate=validate,
+        model_config=net.config(),
+        extra_config=extra,
+        resume=resume,
+    )
+    t0 = time.perf_counter()
+    summary = trainer.fit()
+    summary["params"] = count_parameters(net)
+    summary["wall_s"] = time.perf_counter() - t0
+    return summary
+
+
+def _closed_form(
+    net: Any,
+    model: str,
+    out: Path,
+    train_ws: Any,
+    validate: Any,
+    extra: dict[str, Any],
+    resume: bool,
+) -> dict[str, Any]:
+    """Baseline (nothing to fit) and Linear-ARX (ridge): same run-directory layout."""
+    from rmi_learn.training import (
+        BEST_WEIGHTS,
+        CONFIG_FILE,
+        METRICS_FILE,
+        SUMMARY_FILE,
+        _write_json,
+        save_weights,
+    )
+
+    if (out / CONFIG_FILE).exists():
+        if not resume:
+            raise FileExistsError(
+                f"{out} already holds a run; pass --resume to continue it or choose another "
+                "output directory"
+            )
+        if (out / SUMMARY_FILE).exists():
+            done: dict[str, Any] = json.loads((out / SUMMARY_FILE).read_text(encoding="utf-8"))
+            return done
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    if model == "arx":
+        extra["n_fit"] = net.fit(train_ws)
+    _write_json(
+        out / CONFIG_FILE,
+        {
+            "model": net.config(),
+            "train": None,
+            "extra": extra,
+            "params": 0,
+            "train_size": len(train_ws),
+        },
+    )
+    save_weights(net.state_dict(), out / BEST_WEIGHTS)
+    metrics = validate(net)
+    fit_s = time.perf_counter() - t0
+    with open(out / METRICS_FILE, "a", encoding="utf-8") as f:
+        f.write(
+            json.dumps({"kind": "epoch", "epoch": 1, "step": 0, "fit_s": fit_s, **metrics}) + "\n"
+        )
+    summary = {
+        "finished": True,
+        "stopped_early": False,
+        "epochs": 1,
+        "steps": 0,
+        "select_metric": "val_water_mae_g@64",
+        "best_metric": metrics.get("val_water_mae_g@64"),
+        "best_epoch": 1,
+        "params": 0,
+        "wall_s": fit_s,
+    }
+    _write_json(out / SUMMARY_FILE, summary)
+    return summary
