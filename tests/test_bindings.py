@@ -24,26 +24,12 @@ from hypothesis import strategies as st
 import rmi_sph
 from rmi_learn.runs import RUN_COLUMNS, read_run, write_run
 from rmi_learn.schema import ACTIONS, EXTRAS, OBS, PHASES
-
-TINY: dict[str, Any] = dict(
-    dt=2e-3,
-    settle_time=0.05,
-    ramp_time=0.1,
-    hold_time=0.1,
-    wait_time=0.05,
-    squeeze_ramp_time=0.1,
-    squeeze_hold_time=0.1,
-)
-
-
-def tiny(**kw: Any) -> dict[str, Any]:
-    kw = {**TINY, **kw}
-    return rmi_sph.trial_config(8, 0.8, 20.0, 150.0, 0.01, 0, **kw)
+from tiny_trial import tiny_config
 
 
 @pytest.fixture(scope="module")
 def cfg() -> dict[str, Any]:
-    return tiny()
+    return tiny_config()
 
 
 @pytest.fixture(scope="module")
@@ -264,7 +250,7 @@ def test_state_and_pickle_continue_identically(cfg: dict[str, Any], tmp_path: Pa
     from_state = rmi_sph.Simulation.from_state(state, num_threads=2)
     sim.save(tmp_path / "s.bin")
     loaded = rmi_sph.Simulation.load(tmp_path / "s.bin", num_threads=1)
-    other = rmi_sph.Simulation(tiny(jitter=0.1), num_threads=1)
+    other = rmi_sph.Simulation(tiny_config(jitter=0.1), num_threads=1)
     other.set_state(state)
     assert other.config == cfg and other.time == sim.time and other.phase == sim.phase
     ref = _continue(sim)
@@ -320,7 +306,7 @@ def test_ctrl_c_interrupts_step_and_run_trial(cfg: dict[str, Any]) -> None:
             sim.step(10**7)
         assert time.perf_counter() - t0 < 5.0
         assert 0 < sim.step_count < 10**7
-        long = tiny(settle_time=50.0)
+        long = tiny_config(settle_time=50.0)
         _interrupt_after(0.2)
         t0 = time.perf_counter()
         with pytest.raises(KeyboardInterrupt):

@@ -10,24 +10,14 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-import rmi_sph
 from rmi_learn.env import ENV_ID, SpongeSqueezeEnv
 from rmi_learn.schema import OBS
-
-TINY: dict[str, Any] = dict(
-    dt=2e-3,
-    settle_time=0.05,
-    ramp_time=0.1,
-    hold_time=0.1,
-    wait_time=0.05,
-    squeeze_ramp_time=0.1,
-    squeeze_hold_time=0.1,
-)
+from tiny_trial import tiny_config
 
 
 @pytest.fixture(scope="module")
 def cfg() -> dict[str, Any]:
-    return rmi_sph.trial_config(8, 0.8, 20.0, 150.0, 0.01, **TINY)
+    return tiny_config()
 
 
 def test_env_checker_passes(cfg: dict[str, Any]) -> None:

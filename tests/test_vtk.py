@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -14,16 +13,7 @@ import rmi_sph
 from rmi_learn.cli import main
 from rmi_learn.runs import RUN_COLUMNS, read_run
 from rmi_learn.vtk import FrameWriter, polydata_xml, read_vtp_arrays, write_vtp
-
-TINY: dict[str, Any] = dict(
-    dt=2e-3,
-    settle_time=0.05,
-    ramp_time=0.1,
-    hold_time=0.1,
-    wait_time=0.05,
-    squeeze_ramp_time=0.1,
-    squeeze_hold_time=0.1,
-)
+from tiny_trial import tiny_config
 
 
 @pytest.mark.parametrize("binary", [False, True])
@@ -57,7 +47,7 @@ def test_polydata_round_trip(tmp_path: Path, binary: bool) -> None:
 
 
 def test_frames_of_a_simulation(tmp_path: Path) -> None:
-    sim = rmi_sph.Simulation(rmi_sph.trial_config(8, 0.8, 20.0, 150.0, 0.01, **TINY), num_threads=1)
+    sim = rmi_sph.Simulation(tiny_config(), num_threads=1)
     writer = FrameWriter(tmp_path, include_boundary=True)
     writer.write(sim)
     sim.step(40)
@@ -89,7 +79,7 @@ def test_frames_of_a_simulation(tmp_path: Path) -> None:
 
 
 def test_simulate_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    cfg = rmi_sph.trial_config(8, 0.8, 20.0, 150.0, 0.01, seed=2, **TINY)
+    cfg = tiny_config(seed=2)
     cfg_path = tmp_path / "trial.json"
     cfg_path.write_text(json.dumps(cfg))
     out = tmp_path / "out"

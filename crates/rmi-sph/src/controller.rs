@@ -243,13 +243,12 @@ pub fn smoothstep(s: f64) -> f64 {
 /// Eq. 5b with the guards: the regulated closing speed, stopped at the minimum width and
 /// reversed above the force limit.
 pub fn regulate(p: &ControllerParams, target: f64, input: &ControlInput) -> f64 {
-    let v = (p.k_f * (target - input.force)).clamp(-p.v_open, p.v_close);
-    guard(p, v, input)
+    guard(p, p.k_f * (target - input.force), input)
 }
 
-/// The guards alone, applied to any closing speed.
+/// The speed limits and guards, applied to any closing speed.
 pub fn guard(p: &ControllerParams, v: f64, input: &ControlInput) -> f64 {
-    let mut v = v.clamp(-p.v_open.max(1e-12), p.v_close.max(1e-12));
+    let mut v = v.clamp(-p.v_open, p.v_close);
     if input.force >= FORCE_LIMIT {
         v = -p.v_open;
     }

@@ -190,8 +190,8 @@ struct Layer {
     gate: Gate,
     obs: Observation,
     load_sum: (f64, f64, u32),
+    /// Each phase entered and the retained water at its entry (kg).
     phase_water: Vec<(Phase, f64)>,
-    removed: Vec<f64>,
     initial_water: f64,
 }
 
@@ -222,12 +222,11 @@ impl Trial {
             obs: Observation::default(),
             load_sum: (0.0, 0.0, 0),
             phase_water: Vec::new(),
-            removed: vec![0.0; Phase::ALL.len()],
             initial_water: 0.0,
         };
         let friction_bodies = vec![true; sim.boundary().bodies.len()];
         let mut t = Trial { cfg, sim, gripper, friction_bodies, layer };
-        t.layer.obs = t.observe(&[]);
+        t.layer.obs = t.observe(&[]).0;
         t.layer.initial_water = t.layer.obs.m_l;
         t.layer.phase_water.push((Phase::Settle, t.layer.obs.m_l));
         Ok(t)
@@ -308,16 +307,18 @@ impl Trial {
         (kept, total)
     }
 
-    fn observe(&self, records: &[crate::friction::ContactFriction]) -> Observation {
+    /// The observation after a step with these friction records, and the sponge's centre of
+    /// mass height along the lift axis (m), which the phase transitions need.
+    fn observe(&self, records: &[crate::friction::ContactFriction]) -> (Observation, f64) {
         let b = self.sim.boundary();
         let (f_l, f_r) = self.gripper.loads(b);
         let s = summarise(records, self.gripper.left, self.gripper.right);
         let (m_l, total) = self.retained();
         let (v_sponge, v_pore, sat) = self.sim.sponge_volumes(0);
-        let (_, _, v_com) = self.sim.object_motion(0);
+        let (_, com, v_com) = self.sim.object_motion(0);
         let d = 2.0 * self.cfg.particle_radius;
         let c = &self.layer.controller;
-        Observation {
+        let obs = Observation {
             time: self.sim.time(),
             phase: Some(c.phase),
             m_l,
@@ -341,7 +342,8 @@ impl Trial {
             gate_open: self.layer.gate.opened_at.is_some(),
             m_expelled: total - m_l,
             lift_height: c.lift_start.map_or(0.0, |h0| self.gripper.height(b) - h0),
-        }
+        };
+        (obs, com.dot(&crate::gripper::LIFT_AXIS))
     }
 
     fn control_input(&self) -> ControlInput {
@@ -373,8 +375,7 @@ impl Trial {
         self.layer.gate.filter(&self.cfg.gate, loads);
         let ls = &mut self.layer.load_sum;
         *ls = (ls.0 + loads.0, ls.1 + loads.1, ls.2 + 1);
-        let mut obs = self.observe(&records);
-        let (_, com, _) = self.sim.object_motion(0);
+        let (mut obs, sponge_height) = self.observe(&records);
         let bilateral = obs.contact;
         if self.layer.controller.phase == Phase::Hold {
             let x = GateInput {
@@ -387,17 +388,9 @@ impl Trial {
             self.layer.gate.update(&self.cfg.gate, &x, obs.time);
             obs.gate_open = self.layer.gate.opened_at.is_some();
         }
-        let tr = Transition {
-            gate_open: obs.gate_open,
-            pad_height: self.gripper.height(b),
-            sponge_height: com.z,
-            bilateral,
-        };
+        let tr = Transition { gate_open: obs.gate_open, pad_height: self.gripper.height(b), sponge_height, bilateral };
         let input = self.control_input();
-        let before = self.layer.controller.phase;
         if let Some(next) = self.layer.controller.advance(&p, &input, tr) {
-            let (ph, start) = self.layer.phase_water.last().copied().unwrap_or((before, obs.m_l));
-            self.layer.removed[ph as usize] += start - obs.m_l;
             self.layer.phase_water.push((next, obs.m_l));
             obs.phase = Some(next);
         }
@@ -422,9 +415,11 @@ impl Trial {
 
     /// Water removed per phase so far (kg), in phase order, including the running phase.
     pub fn water_removed(&self) -> Vec<(String, f64)> {
-        let mut removed = self.layer.removed.clone();
-        if let Some((ph, start)) = self.layer.phase_water.last() {
-            removed[*ph as usize] += start - self.layer.obs.m_l;
+        // A phase loses what it held at its entry minus what the next one starts with.
+        let mut removed = vec![0.0; Phase::ALL.len()];
+        let ends = self.layer.phase_water.iter().skip(1).map(|x| x.1).chain([self.layer.obs.m_l]);
+        for ((ph, start), end) in self.layer.phase_water.iter().zip(ends) {
+            removed[*ph as usize] += start - end;
         }
         Phase::ALL
             .iter()

@@ -197,19 +197,22 @@ def run(args: argparse.Namespace) -> int:
         "note": "predicted by the scorer W_T that selects the chunk (biased toward it)",
     }
 
+    def source_rows(metric: str) -> tuple[list[list[str]], list[dict[str, Any]]]:
+        """Rows of one metric for the original action, each first sample and each selection
+        (Tables III and S1 share this layout)."""
+        sources = [("Original controller action", first_obj, f"orig_{metric}")] + [
+            item
+            for o in policies
+            for item in (
+                (f"{LABELS[o]}, first sample", o, f"first_{metric}"),
+                (f"{LABELS[o]} + W_T", o, f"sel_{metric}"),
+            )
+        ]
+        built = [row(label, obj, key) for label, obj, key in sources]
+        return [m for m, _ in built], [j for _, j in built]
+
     # Table III
-    md_rows, js_rows = [], []
-    for label, obj, key in [("Original controller action", first_obj, "orig_JM")] + [
-        item
-        for o in policies
-        for item in (
-            (f"{LABELS[o]}, first sample", o, "first_JM"),
-            (f"{LABELS[o]} + W_T", o, "sel_JM"),
-        )
-    ]:
-        m, j = row(label, obj, key)
-        md_rows.append(m)
-        js_rows.append(j)
+    md_rows, js_rows = source_rows("JM")
     _write(
         args.out,
         "table3_ranking",
@@ -257,18 +260,7 @@ def run(args: argparse.Namespace) -> int:
     )
 
     # Table S1
-    mds, jss = [], []
-    for label, obj, key in [("Original controller action", first_obj, "orig_J")] + [
-        item
-        for o in policies
-        for item in (
-            (f"{LABELS[o]}, first sample", o, "first_J"),
-            (f"{LABELS[o]} + W_T", o, "sel_J"),
-        )
-    ]:
-        m, j = row(label, obj, key)
-        mds.append(m)
-        jss.append(j)
+    mds, jss = source_rows("J")
     _write(
         args.out,
         "tableS1_cost",

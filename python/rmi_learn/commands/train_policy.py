@@ -97,23 +97,12 @@ def run(args: argparse.Namespace) -> int:
     f_std = float(ds.stats.u_std[0])
     seed = args.seed
 
-    def loss_fn(net: torch.nn.Module, batch: dict[str, Any], state: TrainState) -> Any:
-        _, goal = goal_from_batch(batch)
-        loss, _info = objective.loss(
-            net,  # type: ignore[arg-type]
-            batch["actions"],
-            batch["hist"],
-            batch["hist_mask"],
-            goal,
-        )
-        return loss
-
-    def evaluate(net: torch.nn.Module, state: TrainState) -> dict[str, float]:
-        b = val_batch
+    def batch_loss(
+        net: torch.nn.Module, b: dict[str, Any], gen: torch.Generator | None = None
+    ) -> tuple[Any, dict[str, Any]]:
+        """The objective's loss on a window batch (noise from ``gen`` when given)."""
         _, goal = goal_from_batch(b)
-        metrics: dict[str, float] = {}
-        gen = torch.Generator().manual_seed(seed + 12345)
-        live, info = objective.loss(
+        return objective.loss(
             net,  # type: ignore[arg-type]
             b["actions"],
             b["hist"],
@@ -121,6 +110,15 @@ def run(args: argparse.Namespace) -> int:
             goal,
             gen,
         )
+
+    def loss_fn(net: torch.nn.Module, batch: dict[str, Any], state: TrainState) -> Any:
+        return batch_loss(net, batch)[0]
+
+    def evaluate(net: torch.nn.Module, state: TrainState) -> dict[str, float]:
+        b = val_batch
+        _, goal = goal_from_batch(b)
+        metrics: dict[str, float] = {}
+        live, info = batch_loss(net, b, torch.Generator().manual_seed(seed + 12345))
         metrics["val_loss"] = float(live)
         if isinstance(objective, DiffusionObjective):
             buckets = info["t"] // 10
@@ -144,15 +142,7 @@ def run(args: argparse.Namespace) -> int:
                 metrics["val_action_mae"] = float(err.mean())
                 metrics["val_force_mae_N"] = float(err[..., 0].mean()) * f_std
             else:
-                gen = torch.Generator().manual_seed(seed + 12345)
-                ema_loss, _ = objective.loss(
-                    ema_net,  # type: ignore[arg-type]
-                    b["actions"],
-                    b["hist"],
-                    b["hist_mask"],
-                    goal,
-                    gen,
-                )
+                ema_loss, _ = batch_loss(ema_net, b, torch.Generator().manual_seed(seed + 12345))
                 metrics["val_flow_mse"] = float(ema_loss)
         return metrics
 

@@ -23,7 +23,7 @@ import math
 import torch
 from torch import Tensor
 
-from rmi_learn.policy.unet import PolicyUNet
+from rmi_learn.policy.unet import ChunkSampler, PolicyUNet
 
 
 def cosine_alpha_bar(n_steps: int = 50, max_beta: float = 0.999) -> Tensor:
@@ -80,7 +80,7 @@ def ddim_step_pairs(n_train_steps: int = 50, n_sample_steps: int = 16) -> list[t
     return list(zip(steps, [*steps[1:], -1], strict=True))
 
 
-class DiffusionObjective:
+class DiffusionObjective(ChunkSampler):
     """x0-prediction DDPM training and DDIM sampling for :class:`PolicyUNet`."""
 
     name = "diffusion"
@@ -156,18 +156,3 @@ class DiffusionObjective:
             eps = (x - math.sqrt(ab_t) * x0) / math.sqrt(1.0 - ab_t)
             x = math.sqrt(ab_prev) * x0 + math.sqrt(1.0 - ab_prev) * eps
         return x
-
-    @torch.no_grad()
-    def sample(
-        self,
-        model: PolicyUNet,
-        hist: Tensor,
-        hist_mask: Tensor,
-        goal: Tensor,
-        generator: torch.Generator | None = None,
-    ) -> Tensor:
-        """One standardised chunk (N, H, 2) per condition row."""
-        cfg = model.config
-        noise = torch.randn((hist.shape[0], cfg.horizon, cfg.action_dim), generator=generator)
-        obs_cond = model.encode_condition(hist, hist_mask, goal)
-        return self.sample_from_condition(model, obs_cond, noise.to(hist.device))

@@ -14,7 +14,7 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
-from rmi_learn.policy.unet import PolicyUNet
+from rmi_learn.policy.unet import ChunkSampler, PolicyUNet
 
 #: Multiplier from flow time in [0, 1] to the step units of the sinusoidal embedding.
 TIME_SCALE = 1000.0
@@ -41,7 +41,7 @@ def euler_integrate(
     return x
 
 
-class FlowObjective:
+class FlowObjective(ChunkSampler):
     """Rectified flow: target ``A - eps``, 20 Euler steps, ``t * 1000`` time embedding."""
 
     name = "flow"
@@ -87,18 +87,3 @@ class FlowObjective:
             return model.denoise(x, t * self.time_scale, obs_cond)
 
         return euler_integrate(velocity, noise, self.n_sample_steps)
-
-    @torch.no_grad()
-    def sample(
-        self,
-        model: PolicyUNet,
-        hist: Tensor,
-        hist_mask: Tensor,
-        goal: Tensor,
-        generator: torch.Generator | None = None,
-    ) -> Tensor:
-        """One standardised chunk (N, H, 2) per condition row."""
-        cfg = model.config
-        noise = torch.randn((hist.shape[0], cfg.horizon, cfg.action_dim), generator=generator)
-        obs_cond = model.encode_condition(hist, hist_mask, goal)
-        return self.sample_from_condition(model, obs_cond, noise.to(hist.device))

@@ -208,3 +208,26 @@ class PolicyUNet(nn.Module):
 def count_parameters(model: nn.Module) -> int:
     """Number of trainable parameters."""
     return sum(p.numel() for p in model.parameters() if p.requires_grad)
+
+
+class ChunkSampler:
+    """Sampling entry shared by the training objectives: draw the noise, encode the
+    condition once, and let the objective's ``sample_from_condition`` integrate."""
+
+    def sample_from_condition(self, model: PolicyUNet, obs_cond: Tensor, noise: Tensor) -> Tensor:
+        raise NotImplementedError
+
+    @torch.no_grad()
+    def sample(
+        self,
+        model: PolicyUNet,
+        hist: Tensor,
+        hist_mask: Tensor,
+        goal: Tensor,
+        generator: torch.Generator | None = None,
+    ) -> Tensor:
+        """One standardised chunk (N, H, 2) per condition row."""
+        cfg = model.config
+        noise = torch.randn((hist.shape[0], cfg.horizon, cfg.action_dim), generator=generator)
+        obs_cond = model.encode_condition(hist, hist_mask, goal)
+        return self.sample_from_condition(model, obs_cond, noise.to(hist.device))
