@@ -22,6 +22,7 @@ def _register(name: str, module: str, help_text: str) -> None:
 _register("simulate", "simulate", "run one grasp-lift-squeeze trial, write Parquet and VTK")
 _register("sweep", "sweep", "run a grid of trials (resumable, local or Ray)")
 _register("dataset", "dataset", "resample runs to 20 ms and build learning windows")
+_register("analyze", "analyze", "physical analysis of a run grid: figures and numbers")
 _register("train-wm", "train_wm", "train a world model")
 _register("eval-wm", "eval_wm", "evaluate world models, write Tables II-IV")
 _register("train-policy", "train_policy", "train a goal-conditioned UNet policy")
