@@ -19,7 +19,7 @@ RUST_INPUTS := Cargo.toml Cargo.lock $(shell find crates -name '*.rs' -o -name C
 export PYO3_PYTHON := $(abspath $(VENV_PY))
 export PIP_DISABLE_PIP_VERSION_CHECK := 1
 
-.PHONY: setup test test-rust test-python demo lint bench clean
+.PHONY: setup test test-rust test-python demo pipeline pipeline-tiny validation report lint bench clean
 
 setup: $(BUILD_STAMP)
 
@@ -49,6 +49,26 @@ test-python: setup
 
 demo: setup
 	cargo run --release -p rmi-benches --bin demo
+
+# The main job: sweep -> dataset -> analysis -> world models -> policies -> ranking -> closed
+# loop -> report on the quick preset (PRESET=paper for the paper's grid). Resumable: run it
+# again after an interruption. The engine validation records go into the same report.
+PRESET ?= quick
+OUT ?= results/$(PRESET)
+pipeline: setup
+	@test -d $(OUT)/validation || $(MAKE) --no-print-directory validation OUT=$(OUT)
+	$(VENV)/bin/rmi pipeline --preset $(PRESET) --out $(OUT)
+
+# The whole chain on the tiny preset (CI runs this after `make test`).
+pipeline-tiny:
+	$(MAKE) --no-print-directory pipeline PRESET=tiny
+
+# Physical validation against analytic answers (physics.md sec. 5), recorded for the report.
+validation:
+	RMI_VALIDATION_OUT=$(abspath $(OUT))/validation cargo test --release -p rmi-sph --test validation
+
+report: setup
+	$(VENV)/bin/rmi report --out $(OUT)
 
 lint: setup
 	cargo fmt --all -- --check

@@ -497,20 +497,20 @@ def _section_policies(doc: Doc, out: Path, figs: Path, paper: dict[str, Any]) ->
 
 
 def _closed_loop_means(cl: dict[str, Any] | None) -> dict[str, dict[str, float]]:
-    """``{label: {size: real error g}}`` from the closed-loop JSON, whatever its row layout."""
+    """``{Table III label: {size: real error g}}`` from ``table_closed_loop.json``."""
+    labels = {"diffusion": "Diffusion policy", "flow": "Flow matching"}
     out: dict[str, dict[str, float]] = {}
-    for r in (cl or {}).get("rows", []):
-        label = r.get("method") or r.get("label")
-        if label is None:
+    for size, per in ((cl or {}).get("sizes") or {}).items():
+        if not isinstance(per, dict):
             continue
-        vals = {}
-        for s in SIZES:
-            v = r.get(str(s))
-            if isinstance(v, dict):
-                v = v.get("mean") or v.get("real_error_g")
+        cells = {"Original controller action": (per.get("original") or {}).get("real_g")}
+        for obj, name in labels.items():
+            o = per.get(obj) or {}
+            cells[f"{name}, first sample"] = o.get("first_real_g")
+            cells[f"{name} + W_T"] = o.get("selected_real_g")
+        for label, v in cells.items():
             if isinstance(v, (int, float)):
-                vals[str(s)] = float(v)
-        out[str(label)] = vals
+                out.setdefault(label, {})[str(size)] = float(v)
     return out
 
 
@@ -552,30 +552,40 @@ def _ranking_figure(t3: dict[str, Any], cl: dict[str, Any] | None, figs: Path) -
 
 def _section_closed_loop(doc: Doc, out: Path) -> None:
     doc.h(2, "Closed loop: the ranked chunks executed in the simulator")
-    cl = _read_json(out / "closed_loop" / "table_closed_loop.json")
-    if cl is None:
+    md = out / "closed_loop" / "table_closed_loop.md"
+    if not md.exists():
         _missing(doc, "closed-loop execution", "closed-loop")
         return
-    md = out / "closed_loop" / "table_closed_loop.md"
-    header, rows = _md_table(md.read_text(encoding="utf-8")) if md.exists() else ([], [])
-    if header:
-        doc.table(header, rows)
-    note = cl.get("note")
-    if note:
-        doc.p(str(note))
-    doc.p("Per window: `closed_loop/closed_loop_windows.parquet`.")
+    for kind, val in _md_blocks(md.read_text(encoding="utf-8")):
+        if kind == "table":
+            doc.table(val[0], val[1])
+        else:
+            doc.p(val)
+    doc.p("Per window and chunk: `closed_loop/closed_loop_windows.parquet`.")
 
 
-def _md_table(text: str) -> tuple[list[str], list[list[str]]]:
-    """The first pipe table of a Markdown text (header, rows)."""
-    lines = [ln.strip() for ln in text.splitlines() if ln.strip().startswith("|")]
-    if len(lines) < 2:
-        return [], []
+def _md_blocks(text: str) -> list[tuple[str, Any]]:
+    """Paragraphs and pipe tables of a Markdown text written by one of our commands."""
+    blocks: list[tuple[str, Any]] = []
+    lines = text.splitlines()
+    i = 0
 
     def cells(ln: str) -> list[str]:
-        return [c.strip() for c in ln.strip("|").split("|")]
+        return [c.strip() for c in ln.strip().strip("|").split("|")]
 
-    return cells(lines[0]), [cells(ln) for ln in lines[2:]]
+    while i < len(lines):
+        ln = lines[i].strip()
+        if ln.startswith("|"):
+            rows = []
+            while i < len(lines) and lines[i].strip().startswith("|"):
+                rows.append(cells(lines[i]))
+                i += 1
+            blocks.append(("table", (rows[0], rows[2:])))
+            continue
+        if ln:
+            blocks.append(("p", ln))
+        i += 1
+    return blocks
 
 
 def _section_validation(doc: Doc, out: Path, validation: Path | None) -> None:

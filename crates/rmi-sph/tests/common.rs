@@ -31,3 +31,21 @@ pub fn run(sim: &mut Simulation, n: usize) {
         sim.step().unwrap_or_else(|e| panic!("{e}"));
     }
 }
+
+/// Writes one validation case as JSON to `$RMI_VALIDATION_OUT/<case>.json` when that
+/// variable is set (the report's validation table reads these); does nothing otherwise.
+/// `pass` is the test's own acceptance condition, recorded before it is asserted so that a
+/// failing case is reported as failing.
+pub fn record(case: &str, setup: &str, measured: &str, analytic: &str, error: &str, pass: bool) {
+    let Some(dir) = std::env::var_os("RMI_VALIDATION_OUT") else { return };
+    let dir = std::path::PathBuf::from(dir);
+    std::fs::create_dir_all(&dir).expect("create RMI_VALIDATION_OUT");
+    let json = serde_json::json!({
+        "case": case, "setup": setup, "measured": measured, "analytic": analytic,
+        "error": error, "pass": pass,
+    });
+    let name = case.replace(|c: char| !c.is_ascii_alphanumeric(), "_");
+    let tmp = dir.join(format!(".{name}.json.tmp"));
+    std::fs::write(&tmp, serde_json::to_vec_pretty(&json).unwrap()).expect("write record");
+    std::fs::rename(&tmp, dir.join(format!("{name}.json"))).expect("rename record");
+}

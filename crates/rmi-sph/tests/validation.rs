@@ -46,6 +46,14 @@ fn hydrostatic_column() {
     let grad_err = (grad + rho0 * G).abs() / (rho0 * G);
     let mean_err = mean(&errs);
     println!("hydrostatic: floor force {fz:.2} N vs weight {weight:.2} N ({:.2} %), dp/dz {grad:.1} vs {:.1} Pa/m ({:.2} %), mean compression {:.4} %", 100.0 * force_err, -rho0 * G, 100.0 * grad_err, 100.0 * mean_err);
+    record(
+        "hydrostatic column",
+        "20 x 20 x 40 cm water, r = 1 cm, 1.3 s",
+        &format!("floor load {fz:.2} N; dp/dz {grad:.0} Pa/m"),
+        &format!("weight {weight:.2} N; {:.0} Pa/m", -rho0 * G),
+        &format!("{:.2} %; {:.1} %", 100.0 * force_err, 100.0 * grad_err),
+        force_err < 0.02 && grad_err < 0.05 && mean_err <= eta,
+    );
     assert!(force_err < 0.02, "floor force error {force_err}");
     assert!(grad_err < 0.05, "pressure gradient error {grad_err}");
     assert!(mean_err <= eta, "mean compression {mean_err} above tolerance {eta}");
@@ -76,6 +84,14 @@ fn dam_break_conserves_volume_and_respects_ritter_bound() {
     assert_eq!(sim.particles().n_fluid, nf);
     let front = sim.particles().x.iter().map(|x| x.x).fold(f64::MIN, f64::max);
     println!("dam break: worst converged mean compression {:.4} % (tolerance {:.3} %), front at t = 0.4 s: {:.3} m (Ritter bound {:.3} m)", 100.0 * worst, 100.0 * eta, front, x0 + 2.0 * (G * h0).sqrt() * 0.4);
+    record(
+        "dam break",
+        "1 m column, r = 2.5 cm, 0.4 s",
+        &format!("worst mean compression {:.4} %; front {front:.2} m", 100.0 * worst),
+        &format!("tolerance {:.3} %; Ritter bound {:.2} m", 100.0 * eta, x0 + 2.0 * (G * h0).sqrt() * 0.4),
+        "within",
+        worst <= eta && front > x0 + 0.3,
+    );
     assert!(worst <= eta);
     assert!(front > x0 + 0.3, "the column must collapse");
 }
@@ -118,6 +134,14 @@ fn darcy_drainage_matches_permeability() {
         expected,
         100.0 * err,
         vz.len()
+    );
+    record(
+        "Darcy drainage",
+        "fixed saturated skeleton, k = 1e-9 m^2, phi = 0.6, r = 5 mm",
+        &format!("interstitial speed {u:.4} m/s"),
+        &format!("k rho g / (mu phi) = {expected:.4} m/s"),
+        &format!("{:.1} % (lattice spread +-20 %)", 100.0 * err),
+        err < 0.2,
     );
     // The drag constant is a lattice average with a +-20 % spread (physics.md sec. 3.1/5.3).
     assert!(err < 0.2, "Darcy error {err}");
@@ -204,6 +228,14 @@ fn uniaxial_compression_matches_youngs_modulus() {
         expected,
         100.0 * err(reference, expected)
     );
+    record(
+        "uniaxial compression",
+        "dry 6 cm cube, E = 250 kPa, nu = 0.3, 2 mm, frictionless plates",
+        &format!("E = {:.1} kPa (r = 5 mm), {:.1} kPa (r = 2.5 mm); reference trace {:.1} kPa", coarse / 1e3, fine / 1e3, reference / 1e3),
+        &format!("{:.0} kPa; E/(1+nu) = {:.1} kPa", e_mod / 1e3, expected / 1e3),
+        &format!("{:.1} % -> {:.1} %; {:.1} %", 100.0 * err(coarse, e_mod), 100.0 * err(fine, e_mod), 100.0 * err(reference, expected)),
+        err(fine, e_mod) < err(coarse, e_mod) && err(fine, e_mod) < 0.10 && err(reference, expected) < 0.10,
+    );
     assert!(err(reference, expected) < 0.10, "reference-trace modulus error {}", err(reference, expected));
 }
 
@@ -247,6 +279,14 @@ fn buoyancy_of_submerged_skeleton() {
     let expected = (1.0 - phi) * vol * rho * G;
     let err = (fz - expected).abs() / expected;
     println!("buoyancy: {:.3} N vs (1-phi) V rho g = {:.3} N ({:.1} %)", fz, expected, 100.0 * err);
+    record(
+        "buoyancy",
+        "fixed 6 cm skeleton submerged, phi = 0.6, r = 5 mm",
+        &format!("{fz:.3} N"),
+        &format!("(1-phi) V rho g = {expected:.3} N"),
+        &format!("{:.1} %", 100.0 * err),
+        err < 0.05,
+    );
     assert!(err < 0.05, "buoyancy error {err}");
 }
 
@@ -268,6 +308,14 @@ fn resting_sponge_floor_load_equals_weight() {
         }
         let err = (load - weight).abs() / weight;
         println!("resting sponge (saturated = {saturated}): mean floor load {load:.4} N vs weight {weight:.4} N ({:.2} %), {} contacts", 100.0 * err, sim.contacts().len());
+        record(
+            &format!("resting sponge ({})", if saturated { "saturated" } else { "dry" }),
+            "6 x 6 x 12 cm on a floor, r = 5 mm, 0.2 s average",
+            &format!("floor load {load:.4} N"),
+            &format!("weight {weight:.4} N"),
+            &format!("{:.2} %", 100.0 * err),
+            err < 0.01 && !sim.contacts().is_empty(),
+        );
         assert!(err < 0.01, "floor load error {err}");
         assert!(!sim.contacts().is_empty(), "the skeleton must rest on contacts");
     }
