@@ -231,9 +231,19 @@ fn uniaxial_compression_matches_youngs_modulus() {
     record(
         "uniaxial compression",
         "dry 6 cm cube, E = 250 kPa, nu = 0.3, 2 mm, frictionless plates",
-        &format!("E = {:.1} kPa (r = 5 mm), {:.1} kPa (r = 2.5 mm); reference trace {:.1} kPa", coarse / 1e3, fine / 1e3, reference / 1e3),
+        &format!(
+            "E = {:.1} kPa (r = 5 mm), {:.1} kPa (r = 2.5 mm); reference trace {:.1} kPa",
+            coarse / 1e3,
+            fine / 1e3,
+            reference / 1e3
+        ),
         &format!("{:.0} kPa; E/(1+nu) = {:.1} kPa", e_mod / 1e3, expected / 1e3),
-        &format!("{:.1} % -> {:.1} %; {:.1} %", 100.0 * err(coarse, e_mod), 100.0 * err(fine, e_mod), 100.0 * err(reference, expected)),
+        &format!(
+            "{:.1} % -> {:.1} %; {:.1} %",
+            100.0 * err(coarse, e_mod),
+            100.0 * err(fine, e_mod),
+            100.0 * err(reference, expected)
+        ),
         err(fine, e_mod) < err(coarse, e_mod) && err(fine, e_mod) < 0.10 && err(reference, expected) < 0.10,
     );
     assert!(err(reference, expected) < 0.10, "reference-trace modulus error {}", err(reference, expected));
