@@ -52,8 +52,15 @@ class Doc:
     def p(self, text: str) -> None:
         self.blocks.append(("p", text))
 
-    def table(self, header: Sequence[str], rows: Sequence[Sequence[str]], note: str = "") -> None:
-        self.blocks.append(("table", (list(header), [list(r) for r in rows], note)))
+    def table(
+        self,
+        header: Sequence[str],
+        rows: Sequence[Sequence[str]],
+        note: str = "",
+        text: bool = False,
+    ) -> None:
+        """A table; ``text`` left-aligns every column (for prose cells rather than numbers)."""
+        self.blocks.append(("table", (list(header), [list(r) for r in rows], note, text)))
 
     def img(self, rel: str, caption: str) -> None:
         self.blocks.append(("img", (rel, caption)))
@@ -74,9 +81,10 @@ class Doc:
                 rel, cap = val
                 out += [f"![{cap}]({rel})", "", f"*{cap}*", ""]
             else:
-                header, rows, note = val
+                header, rows, note, text = val
+                align = "---" if text else ":---:"
                 out.append("| " + " | ".join(header) + " |")
-                out.append("|" + "|".join(["---"] + [":---:"] * (len(header) - 1)) + "|")
+                out.append("|" + "|".join(["---"] + [align] * (len(header) - 1)) + "|")
                 out += ["| " + " | ".join(r) + " |" for r in rows]
                 out.append("")
                 if note:
@@ -110,8 +118,8 @@ class Doc:
                     f"<figcaption>{inline(cap)}</figcaption></figure>"
                 )
             else:
-                header, rows, note = val
-                t = ["<table><thead><tr>"]
+                header, rows, note, text = val
+                t = ['<table class="text">' if text else "<table>", "<thead><tr>"]
                 t += [f"<th>{inline(c)}</th>" for c in header]
                 t.append("</tr></thead><tbody>")
                 for r in rows:
@@ -138,7 +146,7 @@ margin:2em auto;padding:0 1em;color:#222;line-height:1.45}
 h1{border-bottom:2px solid #444}h2{border-bottom:1px solid #bbb;margin-top:2em}
 table{border-collapse:collapse;margin:.6em 0;font-size:.9em}
 th,td{border:1px solid #ccc;padding:.25em .55em;text-align:center}
-td:first-child,th:first-child{text-align:left}
+td:first-child,th:first-child{text-align:left}table.text td,table.text th{text-align:left}
 thead{background:#f0f0f0}tr.paper td{color:#666;font-style:italic;background:#fafafa}
 figure{margin:1em 0}img{max-width:100%;border:1px solid #ddd}
 figcaption{font-size:.9em;color:#444}
@@ -235,7 +243,7 @@ def _section_grid(doc: Doc, out: Path) -> None:
                 + ")",
             ]
         )
-    doc.table(["", "value"], rows)
+    doc.table(["", "value"], rows, text=True)
     if ok.height:
         piv = (
             ok.group_by("size_cm", "porosity", "F_hold")
@@ -309,10 +317,10 @@ def _section_physics(doc: Doc, out: Path, figs: Path, paper: dict[str, Any]) -> 
                 p["water_per_phase"],
             ]
         )
-    doc.table(["quantity", "ours", "paper"], rows)
-    summary = ana.get("summary_text")
-    if summary:
-        doc.p(str(summary))
+    doc.table(["quantity", "ours", "paper"], rows, text=True)
+    for line in str(ana.get("summary_text") or "").splitlines():
+        if line.strip():
+            doc.p(line.strip())
     doc.p("All numbers: `analysis/analysis.json`.")
 
 
@@ -493,7 +501,11 @@ def _section_policies(doc: Doc, out: Path, figs: Path, paper: dict[str, Any]) ->
     doc.table(["action source"] + [f"{s} cm" for s in SIZES], _rank_rows(tS1, paper["tableS1"]))
     rel = _ranking_figure(t3, _read_json(out / "closed_loop" / "table_closed_loop.json"), figs)
     if rel:
-        doc.img(rel, "Terminal water error per size: predicted by W_T (bars) and real (hatched)")
+        doc.img(
+            rel,
+            "Terminal water error per size and action source: as W_T predicts it (left) and "
+            "as the simulator realises it (right, closed loop)",
+        )
 
 
 def _closed_loop_means(cl: dict[str, Any] | None) -> dict[str, dict[str, float]]:
@@ -522,28 +534,31 @@ def _ranking_figure(t3: dict[str, Any], cl: dict[str, Any] | None, figs: Path) -
     if not rows:
         return None
     real = _closed_loop_means(cl)
-    fig, ax = plt.subplots(figsize=(9, 3.8))
+    panels = [("predicted by W_T (Table III)", {r["method"]: r for r in rows})]
+    if real:
+        panels.append(("real, executed in the simulator", real))
+    fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 3.8), squeeze=False)
     width = 0.8 / len(rows)
     x = np.arange(len(SIZES))
-    for i, r in enumerate(rows):
-        ys = [r.get(str(s)) for s in SIZES]
-        ys = [np.nan if y is None else y for y in ys]
-        bars = ax.bar(x + i * width, ys, width, label=r["method"])
-        rv = real.get(r["method"])
-        if rv:
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for ax, (title, data) in zip(axes[0], panels, strict=True):
+        for i, r in enumerate(rows):
+            vals = data.get(r["method"]) or {}
+            ys = [vals.get(str(s)) for s in SIZES]
             ax.bar(
                 x + i * width,
-                [rv.get(str(s), np.nan) for s in SIZES],
+                [np.nan if y is None else y for y in ys],
                 width,
-                fill=False,
-                hatch="//",
-                edgecolor=bars.patches[0].get_facecolor(),
+                label=r["method"],
+                color=colours[i % len(colours)],
             )
-    ax.set_xticks(x + 0.4 - width / 2, [f"{s} cm" for s in SIZES])
-    ax.set_ylabel("terminal water error (g)")
-    ax.legend(fontsize=8, ncol=2, frameon=False)
-    ax.grid(axis="y", alpha=0.3)
-    fig.tight_layout()
+        ax.set_xticks(x + 0.4 - width / 2, [f"{s} cm" for s in SIZES])
+        ax.set_title(title, fontsize=10)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0][0].set_ylabel("terminal water error (g)")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=3, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.12, 1, 1))
     figs.mkdir(parents=True, exist_ok=True)
     _save_fig(fig, figs / "fig_ranking.png")
     plt.close(fig)
@@ -613,7 +628,7 @@ def _section_validation(doc: Doc, out: Path, validation: Path | None) -> None:
                 "pass" if r.get("pass") else "FAIL",
             ]
         )
-    doc.table(["case", "set-up", "measured", "analytic", "error", "test"], rows)
+    doc.table(["case", "set-up", "measured", "analytic", "error", "test"], rows, text=True)
 
 
 def _versions() -> list[list[str]]:
@@ -638,7 +653,7 @@ def _versions() -> list[list[str]]:
 
 def _section_config(doc: Doc, out: Path) -> None:
     doc.h(2, "Versions, configuration and timings")
-    doc.table(["component", "version"], _versions())
+    doc.table(["component", "version"], _versions(), text=True)
     stages = sorted((out / "stages").glob("*.json"), key=lambda p: p.stat().st_mtime)
     if stages:
         rows = []
