@@ -94,6 +94,16 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
+def _current_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+# Read once at import: os.umask can only be read by setting it, which is not thread-safe.
+_UMASK = _current_umask()
+
+
 def atomic_write_bytes(path: str | os.PathLike[str], writer: Any) -> Path:
     """Write ``path`` atomically: ``writer(fileobj)`` fills a temporary file in the same
     directory, which is fsynced and renamed over ``path``. Returns ``path``.
@@ -108,6 +118,9 @@ def atomic_write_bytes(path: str | os.PathLike[str], writer: Any) -> Path:
         with os.fdopen(fd, "wb") as f:
             writer(f)
             f.flush()
+            # mkstemp creates 0600; give the file the permissions a plain open() would.
+            if hasattr(os, "fchmod"):
+                os.fchmod(f.fileno(), 0o666 & ~_UMASK)
             os.fsync(f.fileno())
         os.replace(tmp, dest)
     except BaseException:
