@@ -42,12 +42,12 @@ from rmi_learn.runs import (
     atomic_write_bytes,
     atomic_write_json,
     iter_run_files,
+    json_safe,
     read_run,
     read_run_meta,
     run_id,
 )
-from rmi_learn.schema import PHASES
-from rmi_learn.sweep import INDEX_FILE, RUNS_SUBDIR, _outcome_row, build_index
+from rmi_learn.sweep import INDEX_FILE, INDEX_SCHEMA, RUNS_SUBDIR, _outcome_row, build_index
 from rmi_learn.synthetic import SOURCE as SYNTHETIC_SOURCE
 
 #: Phases whose water removal is analysed. ``settle`` precedes contact and ``done`` is the
@@ -195,22 +195,7 @@ def _tree_index(root: Path) -> pl.DataFrame:
 def _normalise_index(df: pl.DataFrame | None) -> pl.DataFrame:
     """Give an index every column the analysis reads, with fixed types (a grid where, say,
     no run failed has an all-null ``failure`` column of unknown type)."""
-    types: dict[str, Any] = {
-        "run_id": pl.String,
-        "status": pl.String,
-        "path": pl.String,
-        "size_cm": pl.Int64,
-        "porosity": pl.Float64,
-        "F_hold": pl.Float64,
-        "F_squeeze": pl.Float64,
-        "seed": pl.Int64,
-        "lift_success": pl.Boolean,
-        "stable_squeeze": pl.Boolean,
-        "failure": pl.String,
-        "initial_water": pl.Float64,
-        "final_water": pl.Float64,
-        **{f"water_removed_{ph}": pl.Float64 for ph in PHASES},
-    }
+    types = INDEX_SCHEMA
     if df is None:
         df = pl.DataFrame(schema=types)
     df = df.with_columns(
@@ -938,21 +923,6 @@ def plot_association(sel: pl.DataFrame, assoc: Mapping[str, Any], title: str) ->
 # Driver
 
 
-def _clean(obj: Any) -> Any:
-    """JSON-safe copy: NaN and inf become ``None``, numpy scalars Python numbers."""
-    if isinstance(obj, Mapping):
-        return {str(k): _clean(v) for k, v in obj.items() if not str(k).startswith("_")}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return [_clean(v) for v in obj.tolist()]
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
 def _ours_vs_paper(counts: Mapping[str, Any], lift: Mapping[str, Any]) -> dict[str, Any]:
     """Our figures for the quantities the paper states, in the paper's terms."""
 
@@ -1028,12 +998,11 @@ def analyze(
 
     # Fig. 5
     water = water_per_phase(index)
+    values_g = water.pop("_values_g")  # for the figure only, not the JSON
     ok = _ok(index)
     sizes_by_phase = {ph: ok["size_cm"].to_numpy()[_reached_mask(ok, ph)] for ph in ANALYSIS_PHASES}
     _save(
-        plot_water_per_phase(
-            water["_values_g"], sizes_by_phase, f"Water removed per controller phase{tag}"
-        ),
+        plot_water_per_phase(values_g, sizes_by_phase, f"Water removed per controller phase{tag}"),
         out / FIGURES["water_per_phase"],
     )
 
@@ -1075,7 +1044,7 @@ def analyze(
         "paper": PAPER,
         "files": dict(FIGURES, json=JSON_FILE),
     }
-    clean = _clean(result)
+    clean = json_safe(result)
     clean["summary_text"] = " ".join(summary_lines(clean))
     atomic_write_json(out / JSON_FILE, clean)
     return dict(clean)

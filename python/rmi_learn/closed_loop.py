@@ -71,8 +71,9 @@ import polars as pl
 
 from rmi_learn import __version__
 from rmi_learn.dataset import resample_run, select_learning_rows
-from rmi_learn.runs import atomic_write_bytes, atomic_write_json, read_run
+from rmi_learn.runs import atomic_write_bytes, atomic_write_json, json_safe, read_run
 from rmi_learn.schema import ACTIONS, CONTROL_DT, OBS
+from rmi_learn.sweep import INDEX_FILE
 
 #: Policy objectives whose chunk files ``rmi rank`` writes (``chunks_<objective>.npz``).
 OBJECTIVES: tuple[str, ...] = ("diffusion", "flow")
@@ -82,7 +83,6 @@ CHUNKS: tuple[str, ...] = ("original", "first", "selected")
 COMMAND_MODES: tuple[str, ...] = ("both", "force")
 WINDOWS_FILE = "closed_loop_windows.parquet"
 TABLE_STEM = "table_closed_loop"
-INDEX_FILE = "index.parquet"
 #: Keys every chunk file must hold (see ``rmi rank``).
 NPZ_KEYS: tuple[str, ...] = (
     "size_cm",
@@ -695,20 +695,8 @@ def _window_rows(
     replay_wall: float,
 ) -> list[dict[str, Any]]:
     t = window.t
-    goal = float(track.water[t + h])
-    base = {
-        "run_id": window.run_id,
-        "size_cm": window.size_cm,
-        "t": t,
-        "k": int(track.k[t]),
-        "anchor_time_s": float(track.k[t] * CONTROL_DT),
-        "anchor_phase": str(track.phase[t]),
-        "goal_phase": str(track.phase[t + h]),
-        "command": command,
-        "goal_kg": goal,
-        "water_now_kg": float(track.water[t]),
-        "replay_wall_s": replay_wall,
-    }
+    base = _window_base(track, window, h, command, replay_wall)
+    goal = base["goal_kg"]
     recorded = np.stack(
         [track.water[t + 1 : t + h + 1], track.obs[t + 1 : t + h + 1, OBS.index("F_meas")]],
         axis=1,
@@ -752,12 +740,12 @@ def _window_rows(
     return rows
 
 
-def _failed_rows(
-    track: RunTrack, window: Window, h: int, command: str, error: str, wall: float
-) -> list[dict[str, Any]]:
-    """Rows of a window whose replay to the anchor failed: every chunk not executed."""
+def _window_base(
+    track: RunTrack, window: Window, h: int, command: str, replay_wall: float
+) -> dict[str, Any]:
+    """The columns every row of a window shares: where it is, its goal (kg) and the replay."""
     t = window.t
-    base = {
+    return {
         "run_id": window.run_id,
         "size_cm": window.size_cm,
         "t": t,
@@ -768,10 +756,19 @@ def _failed_rows(
         "command": command,
         "goal_kg": float(track.water[t + h]),
         "water_now_kg": float(track.water[t]),
+        "replay_wall_s": replay_wall,
+    }
+
+
+def _failed_rows(
+    track: RunTrack, window: Window, h: int, command: str, error: str, wall: float
+) -> list[dict[str, Any]]:
+    """Rows of a window whose replay to the anchor failed: every chunk not executed."""
+    base = {
+        **_window_base(track, window, h, command, wall),
         "status": "replay_failed",
         "error": error,
         "wall_s": 0.0,
-        "replay_wall_s": wall,
     }
     rows = [{**base, "objective": None, "chunk": "original"}]
     for obj, _ in window.rows:
@@ -947,7 +944,7 @@ def run_closed_loop(
             payload["rank_table3_predicted"] = json.loads(table3.read_text())["rows"]
         except (ValueError, KeyError):
             pass
-    atomic_write_json(out / f"{TABLE_STEM}.json", _json_safe(payload))
+    atomic_write_json(out / f"{TABLE_STEM}.json", json_safe(payload))
     md = _markdown(summary, info)
     atomic_write_bytes(out / f"{TABLE_STEM}.md", lambda f: f.write(md.encode("utf-8")))
     say(f"closed-loop: {n_exec} windows executed in {wall:.1f} s -> {out}")
@@ -957,17 +954,6 @@ def run_closed_loop(
 def _finite(x: Any) -> float | None:
     v = float(x)
     return v if math.isfinite(v) else None
-
-
-def _json_safe(obj: Any) -> Any:
-    """``obj`` with non-finite floats replaced by None (tables never hold NaN)."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    return obj
 
 
 __all__ = [

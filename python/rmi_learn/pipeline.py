@@ -28,15 +28,13 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from rmi_learn.runs import atomic_write_json
+from rmi_learn.runs import atomic_write_json, read_json_source
 
 PRESETS: tuple[str, ...] = ("tiny", "quick", "paper")
 STAGES_SUBDIR = "stages"
@@ -83,20 +81,7 @@ def load_preset(
     """Read a pipeline preset by name (``tiny``, ``quick``, ``paper``) or from a JSON file and
     check its keys. Stage budgets are passed through to the commands, so unknown budget keys
     surface as the command's own argument error."""
-    if (preset is None) == (path is None):
-        raise ValueError("give exactly one of preset or path")
-    if preset is not None:
-        if preset not in PRESETS:
-            raise ValueError(f"unknown pipeline preset {preset!r}; choose one of {PRESETS}")
-        text = resources.files("rmi_learn.pipelines").joinpath(f"{preset}.json").read_text()
-        source = f"pipeline preset {preset}"
-    else:
-        text = Path(path).read_text()  # type: ignore[arg-type]
-        source = str(path)
-    try:
-        cfg = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{source}: not valid JSON: {exc}") from exc
+    cfg, source = read_json_source("rmi_learn.pipelines", PRESETS, preset, path, "pipeline")
     if not isinstance(cfg, dict):
         raise ValueError(f"{source}: expected a JSON object")
     unknown = set(cfg) - _KEYS
@@ -240,11 +225,6 @@ def build_stages(cfg: Mapping[str, Any], out: Path, threads: int) -> list[Stage]
     return stages
 
 
-def stage_done(out: Path, name: str) -> bool:
-    """Whether ``name`` finished in an earlier call (its marker exists)."""
-    return (out / STAGES_SUBDIR / f"{name}.json").exists()
-
-
 def run_pipeline(
     cfg: Mapping[str, Any],
     out_dir: str | os.PathLike[str],
@@ -317,5 +297,4 @@ def run_pipeline(
         atomic_write_json(marker, markers[stage.name])
         say(f"{head} ... done in {wall:.1f} s")
     say(f"pipeline finished in {time.perf_counter() - t_all:.1f} s -> {out}")
-    sys.stdout.flush()
     return markers

@@ -318,10 +318,24 @@ def _section_physics(doc: Doc, out: Path, figs: Path, paper: dict[str, Any]) -> 
             ]
         )
     doc.table(["quantity", "ours", "paper"], rows, text=True)
-    for line in str(ana.get("summary_text") or "").splitlines():
-        if line.strip():
-            doc.p(line.strip())
+    from rmi_learn.analysis import summary_lines
+
+    for line in summary_lines(ana):
+        doc.p(line)
     doc.p("All numbers: `analysis/analysis.json`.")
+
+
+def _ours_then_paper(label: str, cells: list[str], paper: dict[str, Any]) -> list[list[str]]:
+    """Our row, then the paper's row for the same method where the paper has one (its cells
+    per size are a number or a list of numbers, in the table's column order)."""
+    rows = [[label, *cells]]
+    ref = paper.get(label)
+    if ref is not None:
+        vals = [ref[f"{s}cm"] for s in SIZES]
+        rows.append(
+            [f"paper: {label}"] + [_f(x) for v in vals for x in (v if isinstance(v, list) else [v])]
+        )
+    return rows
 
 
 def _wm_rows(
@@ -332,17 +346,8 @@ def _wm_rows(
 ) -> list[list[str]]:
     rows: list[list[str]] = []
     for r in (table or {}).get("horizons", {}).get(horizon, []):
-        rows.append(
-            [r["method"]]
-            + [_f((r.get(f"{s}cm") or {}).get(m)) for s in SIZES for m in metric_names]
-        )
-        ref = paper.get(r["method"])
-        if ref is not None:
-            cells = []
-            for s in SIZES:
-                v = ref[f"{s}cm"]
-                cells += [_f(x) for x in (v if isinstance(v, list) else [v])]
-            rows.append([f"paper: {r['method']}"] + cells)
+        cells = [_f((r.get(f"{s}cm") or {}).get(m)) for s in SIZES for m in metric_names]
+        rows += _ours_then_paper(r["method"], cells, paper)
     return rows
 
 
@@ -449,15 +454,10 @@ def _horizon_figure(results: list[dict[str, Any]], figs: Path) -> str | None:
     return f"{FIG_SUBDIR}/fig_horizon.png"
 
 
-def _rank_rows(
-    table: dict[str, Any] | None, paper: dict[str, Any], digits: int = 2
-) -> list[list[str]]:
+def _rank_rows(table: dict[str, Any] | None, paper: dict[str, Any]) -> list[list[str]]:
     rows: list[list[str]] = []
     for r in (table or {}).get("rows", []):
-        rows.append([r["method"]] + [_f(r.get(str(s)), digits) for s in SIZES])
-        ref = paper.get(r["method"])
-        if ref is not None:
-            rows.append([f"paper: {r['method']}"] + [_f(ref[f"{s}cm"], digits) for s in SIZES])
+        rows += _ours_then_paper(r["method"], [_f(r.get(str(s))) for s in SIZES], paper)
     return rows
 
 
@@ -491,10 +491,7 @@ def _section_policies(doc: Doc, out: Path, figs: Path, paper: dict[str, Any]) ->
             # The reference row has MAE 0 by definition; show it only where data exist.
             has = v.get("smooth_F") is not None
             cells += [_f(v.get(q)) if has else "–" for q in ("MAE_F", "smooth_F")]
-        rows.append([r["method"], *cells])
-        ref = paper["table5"].get(r["method"])
-        if ref is not None:
-            rows.append([f"paper: {r['method']}"] + [_f(x) for s in SIZES for x in ref[f"{s}cm"]])
+        rows += _ours_then_paper(r["method"], cells, paper["table5"])
     doc.table(["method"] + [f"{s} cm {q}" for s in SIZES for q in ("MAE_F", "smooth_F")], rows)
     tS1 = _read_json(rank / "tableS1_cost.json")
     doc.h(3, "Table S1: combined predicted cost J")
@@ -654,14 +651,12 @@ def _versions() -> list[list[str]]:
 def _section_config(doc: Doc, out: Path) -> None:
     doc.h(2, "Versions, configuration and timings")
     doc.table(["component", "version"], _versions(), text=True)
-    stages = sorted((out / "stages").glob("*.json"), key=lambda p: p.stat().st_mtime)
+    paths = sorted((out / "stages").glob("*.json"), key=lambda p: p.stat().st_mtime)
+    stages = [json.loads(p.read_text(encoding="utf-8")) for p in paths]
     if stages:
-        rows = []
-        for p in stages:
-            m = json.loads(p.read_text(encoding="utf-8"))
-            rows.append([m["stage"], f"{m['wall_s']:.1f}"])
+        rows = [[m["stage"], f"{m['wall_s']:.1f}"] for m in stages]
         doc.table(["stage", "wall time (s)"], rows, "Stages finished before this report.")
-        cmds = [c for p in stages for c in json.loads(p.read_text(encoding="utf-8"))["commands"]]
+        cmds = [c for m in stages for c in m["commands"]]
         doc.p("Commands run by the pipeline (reproduce any stage by hand):")
         doc.code("\n".join(cmds))
     for name, rel in (("pipeline preset", "pipeline.json"), ("run grid", "sweep/grid.json")):

@@ -34,6 +34,7 @@ import os
 import subprocess
 import tempfile
 from collections.abc import Iterator, Mapping
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -128,6 +129,44 @@ def atomic_write_bytes(path: str | os.PathLike[str], writer: Any) -> Path:
         raise
     _fsync_dir(dest.parent)
     return dest
+
+
+def json_safe(obj: Any) -> Any:
+    """A JSON-ready copy of ``obj``: NaN and inf become ``None`` (tables and summaries never
+    hold NaN), numpy scalars and arrays become Python numbers and lists, tuples lists."""
+    if isinstance(obj, Mapping):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return [json_safe(v) for v in obj.tolist()]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def read_json_source(
+    package: str, presets: tuple[str, ...], preset: str | None, path: Any, kind: str
+) -> tuple[Any, str]:
+    """Parse a built-in preset (``<package>/<preset>.json``) or a JSON file: exactly one of
+    ``preset`` and ``path``. Returns the parsed value and a label naming its source for error
+    messages; ``kind`` names what is read (e.g. "grid") in those messages."""
+    if (preset is None) == (path is None):
+        raise ValueError("give exactly one of preset or path")
+    if preset is not None:
+        if preset not in presets:
+            raise ValueError(f"unknown {kind} preset {preset!r}; choose one of {presets}")
+        text = resources.files(package).joinpath(f"{preset}.json").read_text()
+        source = f"{kind} preset {preset}"
+    else:
+        text = Path(path).read_text()
+        source = str(path)
+    try:
+        return json.loads(text), source
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{source}: not valid JSON: {exc}") from exc
 
 
 def atomic_write_json(path: str | os.PathLike[str], obj: Any) -> Path:

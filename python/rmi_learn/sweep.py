@@ -40,7 +40,6 @@ import time
 import traceback
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +53,7 @@ from rmi_learn.runs import (
     RunFileError,
     atomic_write_bytes,
     atomic_write_json,
+    read_json_source,
     read_run_meta,
     run_id,
     run_path,
@@ -97,20 +97,7 @@ def load_grid(
     ``squeeze_forces_N`` (0 < F <= 400 N), ``seeds`` (ints), ``radius_m`` (particle radius,
     m), optional ``overrides`` (passed to ``make_config`` as keyword arguments, e.g. trial
     timings), ``name`` and ``description``."""
-    if (preset is None) == (path is None):
-        raise ValueError("give exactly one of preset or path")
-    if preset is not None:
-        if preset not in PRESETS:
-            raise ValueError(f"unknown preset {preset!r}; choose one of {PRESETS}")
-        text = resources.files("rmi_learn.grids").joinpath(f"{preset}.json").read_text()
-        source = f"preset {preset}"
-    else:
-        text = Path(path).read_text()  # type: ignore[arg-type]
-        source = str(path)
-    try:
-        grid = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{source}: not valid JSON: {exc}") from exc
+    grid, source = read_json_source("rmi_learn.grids", PRESETS, preset, path, "grid")
     return validate_grid(grid, source)
 
 
@@ -312,6 +299,29 @@ def _outcome_row(meta: Mapping[str, Any]) -> dict[str, Any]:
     return row
 
 
+#: The columns every index has, in order, with their types (engine extras follow them).
+INDEX_SCHEMA: dict[str, Any] = {
+    "run_id": pl.String,
+    "status": pl.String,
+    "error": pl.String,
+    "path": pl.String,
+    "size_cm": pl.Int64,
+    "porosity": pl.Float64,
+    "F_hold": pl.Float64,
+    "F_squeeze": pl.Float64,
+    "seed": pl.Int64,
+    "lift_success": pl.Boolean,
+    "stable_squeeze": pl.Boolean,
+    "failure": pl.String,
+    "initial_water": pl.Float64,
+    "final_water": pl.Float64,
+    **{f"water_removed_{ph}": pl.Float64 for ph in PHASES},
+    "wall_s": pl.Float64,
+    "n_records": pl.Int64,
+    "duration_s": pl.Float64,
+}
+
+
 def build_index(out_dir: str | os.PathLike[str], write: bool = True) -> pl.DataFrame:
     """One row per run directory under ``OUT/runs`` (run file or error record), sorted by
     run id, and (if ``write``) stored atomically as ``OUT/index.parquet``.
@@ -366,31 +376,11 @@ def build_index(out_dir: str | os.PathLike[str], write: bool = True) -> pl.DataF
                 "wall_s": rec.get("wall_s"),
             }
         )
-    base_schema: dict[str, Any] = {
-        "run_id": pl.String,
-        "status": pl.String,
-        "error": pl.String,
-        "path": pl.String,
-        "size_cm": pl.Int64,
-        "porosity": pl.Float64,
-        "F_hold": pl.Float64,
-        "F_squeeze": pl.Float64,
-        "seed": pl.Int64,
-        "lift_success": pl.Boolean,
-        "stable_squeeze": pl.Boolean,
-        "failure": pl.String,
-        "initial_water": pl.Float64,
-        "final_water": pl.Float64,
-        **{f"water_removed_{ph}": pl.Float64 for ph in PHASES},
-        "wall_s": pl.Float64,
-        "n_records": pl.Int64,
-        "duration_s": pl.Float64,
-    }
-    extra = sorted({k for r in rows for k in r} - set(base_schema))
-    columns = list(base_schema) + extra
+    extra = sorted({k for r in rows for k in r} - set(INDEX_SCHEMA))
+    columns = list(INDEX_SCHEMA) + extra
     data = {c: [r.get(c) for r in rows] for c in columns}
     df = pl.DataFrame(
-        {c: pl.Series(c, data[c], dtype=base_schema.get(c), strict=False) for c in columns}
+        {c: pl.Series(c, data[c], dtype=INDEX_SCHEMA.get(c), strict=False) for c in columns}
     ).sort("run_id")
     if write:
         out.mkdir(parents=True, exist_ok=True)
