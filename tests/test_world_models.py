@@ -125,6 +125,23 @@ def test_transformer_prefix_and_final_norms() -> None:
     assert torch.allclose(full["z"][:, :8], short["z"], atol=1e-5)
 
 
+def test_transformer_scores_chunks_against_one_shared_history() -> None:
+    """B histories with B * M chunks give what the histories repeated per chunk give."""
+    torch.manual_seed(0)
+    model: Any = build({"kind": "transformer"}).eval()
+    assert model.shares_history
+    hist, mask, actions = random_inputs()
+    b, m = 2, 3
+    chunks = torch.randn(b * m, 32, 2)
+    shared = model(hist[:b], mask[:b], chunks)
+    repeated = model(hist[:b].repeat_interleave(m, 0), mask[:b].repeat_interleave(m, 0), chunks)
+    for key in shared:
+        assert shared[key].shape[0] == b * m
+        assert torch.allclose(shared[key], repeated[key], atol=1e-5), key
+    with pytest.raises(ValueError, match="split evenly"):
+        model(hist[:b], mask[:b], chunks[:5])
+
+
 def test_state_gru_ignores_actions_and_mlp_looks_ahead() -> None:
     torch.manual_seed(0)
     sg = build({"kind": "state-gru"}).eval()

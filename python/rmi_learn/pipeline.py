@@ -36,7 +36,7 @@ from typing import Any
 
 from rmi_learn.runs import atomic_write_json, read_json_source
 
-PRESETS: tuple[str, ...] = ("tiny", "quick", "paper")
+PRESETS: tuple[str, ...] = ("tiny", "quick", "study", "paper")
 STAGES_SUBDIR = "stages"
 _KEYS = {
     "name",

@@ -64,7 +64,7 @@ from rmi_learn.schema import PHASES
 
 #: Largest force a grid may ask for (N); the engine refuses more.
 FORCE_LIMIT = 400.0
-PRESETS: tuple[str, ...] = ("tiny", "quick", "paper")
+PRESETS: tuple[str, ...] = ("tiny", "quick", "study", "paper")
 RUNS_SUBDIR = "runs"
 INDEX_FILE = "index.parquet"
 GRID_FILE = "grid.json"

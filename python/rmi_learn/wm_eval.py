@@ -144,12 +144,15 @@ def benchmark_latency(
     repeats: int = 50,
 ) -> float:
     """Median wall time (ms) of one forward pass scoring ``n_chunks`` action chunks of
-    ``horizon`` steps for one history, on the current torch thread setting."""
+    ``horizon`` steps for one history, on the current torch thread setting. Models that
+    share one history encoding across chunks (``shares_history``) get the history once, as
+    the planner passes it; the others get it repeated per chunk."""
     model.eval()
     fixed = getattr(model, "fixed_horizon", None)
     h = fixed if fixed is not None else horizon
-    hist = torch.randn(n_chunks, history, 23)
-    mask = torch.ones(n_chunks, history, 23)
+    n_hist = 1 if getattr(model, "shares_history", False) else n_chunks
+    hist = torch.randn(n_hist, history, 23)
+    mask = torch.ones(n_hist, history, 23)
     actions = torch.randn(n_chunks, h, 2)
     for _ in range(5):
         model(hist, mask, actions)

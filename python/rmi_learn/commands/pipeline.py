@@ -19,7 +19,9 @@ from pathlib import Path
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``rmi pipeline``."""
     src = parser.add_mutually_exclusive_group(required=True)
-    src.add_argument("--preset", choices=("tiny", "quick", "paper"), help="a built-in pipeline")
+    src.add_argument(
+        "--preset", choices=("tiny", "quick", "study", "paper"), help="a built-in pipeline"
+    )
     src.add_argument("--config", type=Path, metavar="FILE", help="a pipeline JSON file")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory")
     parser.add_argument(

@@ -9,7 +9,9 @@ import sys
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``rmi sweep``."""
     src = parser.add_mutually_exclusive_group()
-    src.add_argument("--preset", choices=("tiny", "quick", "paper"), help="a built-in grid")
+    src.add_argument(
+        "--preset", choices=("tiny", "quick", "study", "paper"), help="a built-in grid"
+    )
     src.add_argument("--grid", metavar="FILE", help="a grid JSON file (same keys as the presets)")
     parser.add_argument("--out", required=True, metavar="DIR", help="output directory")
     parser.add_argument("--backend", choices=("local", "ray"), default="local")

@@ -25,6 +25,9 @@ class TransformerWM(WorldModel):
     """Encoder-decoder Transformer, causal in the actions."""
 
     kind = "transformer"
+    #: ``forward`` accepts B histories with B * M action chunks (M consecutive chunks per
+    #: history), so that scoring candidates does not repeat the history encoding.
+    shares_history = True
     causal: torch.Tensor
 
     def __init__(
@@ -86,13 +89,18 @@ class TransformerWM(WorldModel):
         L = hist.shape[1]
         if L > self.history:
             raise ValueError(f"history {L} exceeds the model's {self.history}")
+        n, b = actions.shape[0], hist.shape[0]
+        if n % b:
+            raise ValueError(f"{n} action chunks do not split evenly over {b} histories")
         x = self.in_proj(torch.cat([hist, hist_mask], dim=-1)) + self.enc_pos[:, -L:]
-        memory = self.encoder(x)
+        # Chunks scored for one history share its encoding (``shares_history``): the encoder
+        # runs once per history, not once per candidate chunk.
+        memory = self.encoder(x).repeat_interleave(n // b, dim=0)
         q = self.u_proj(actions) + self.dec_pos[:, :h]
         o = self.decoder(q, memory, tgt_mask=self.causal[:h, :h], tgt_is_causal=True)
-        n = hist.shape[0]
+        z0 = last_z(hist).repeat_interleave(n // b, dim=0)
         return {
-            "z": last_z(hist).unsqueeze(1) + torch.cumsum(self.head_z(o), dim=1),
+            "z": z0.unsqueeze(1) + torch.cumsum(self.head_z(o), dim=1),
             "contact_logit": self.head_c(o)[..., 0],
             "friction_logit": self.head_f(o).view(n, h, N_FRIC),
         }

@@ -221,9 +221,10 @@ class Planner:
         One batched world-model call over B * M rollouts.
         """
         b, m, h, _ = u_phys.shape
-        hist_r = hist.repeat_interleave(m, dim=0)
-        mask_r = hist_mask.repeat_interleave(m, dim=0)
-        z, _p_c, p_f = self.scorer(hist_r, mask_r, self.std.u_to_std(u_phys.reshape(b * m, h, 2)))
+        if not getattr(self.scorer, "shares_history", False):
+            hist = hist.repeat_interleave(m, dim=0)
+            hist_mask = hist_mask.repeat_interleave(m, dim=0)
+        z, _p_c, p_f = self.scorer(hist, hist_mask, self.std.u_to_std(u_phys.reshape(b * m, h, 2)))
         water = self.std.water_to_kg(z[:, h - 1, WATER]).view(b, m)
         costs = cost_terms(
             water, goal_kg[:, None].expand(b, m), u_phys, p_f.view(b, m, h, -1), self.weights
@@ -274,10 +275,12 @@ class Planner:
 def world_model_scorer(model: torch.nn.Module) -> Scorer:
     """Adapt a :class:`rmi_learn.models.WorldModel` (e.g. the Transformer W_T) to
     :data:`Scorer`: free rollout in eval mode, standardised z, contact and friction
-    probabilities."""
+    probabilities. The scorer carries the model's ``shares_history`` flag: when set, it takes
+    B histories with B * M chunks and encodes each history once."""
 
     def score(hist: Tensor, hist_mask: Tensor, actions: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         out = model.predict(hist, hist_mask, actions)  # type: ignore[operator]
         return out["z"], out["p_contact"], out["p_friction"]
 
+    score.shares_history = bool(getattr(model, "shares_history", False))  # type: ignore[attr-defined]
     return score
