@@ -217,6 +217,27 @@ def test_patience_counts_after_min_epochs(tmp_path: Path) -> None:
     assert s["stopped_early"] and s["epochs"] == 8 and s["best_epoch"] == 1
 
 
+def test_selection_waits_for_select_after(tmp_path: Path) -> None:
+    """An early, lucky epoch before ``select_after`` is never selected; patience counts from
+    the first eligible epoch; a run that ends before any eligible epoch keeps its last one."""
+    data = ToyData()
+
+    def worsening(model: torch.nn.Module, state: Any) -> dict[str, float]:
+        return {"score": float(state.epoch)}  # best at epoch 1, worse every epoch after
+
+    c = cfg(epochs=20, patience=3, select_metric="score", min_epochs=5, select_after=5)
+    s = Trainer(make_model(), loss_fn, data, tmp_path / "r", c, evaluate=worsening).fit()
+    assert s["best_epoch"] == 6 and s["best_metric"] == 5.0
+    assert s["stopped_early"] and s["epochs"] == 9
+    short = cfg(epochs=3, select_metric="score", select_after=5)
+    out = tmp_path / "short"
+    s = Trainer(make_model(), loss_fn, data, out, short, evaluate=worsening).fit()
+    assert s["best_epoch"] == 3 and not s["stopped_early"]
+    a = load_file(str(out / "model.safetensors"))
+    b = load_file(str(out / "last.safetensors"))
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+
 def test_debug_mode_is_tiny(tmp_path: Path) -> None:
     data = ToyData(n=10_000)
     s = Trainer(

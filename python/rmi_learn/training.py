@@ -91,6 +91,12 @@ class TrainConfig:
     #: patience counts only epochs after this many (e.g. the teacher-forcing decay), so the
     #: earliest early stop is at epoch min_epochs + patience; selection still sees every epoch
     min_epochs: int = 0
+    #: epochs up to this one are neither selected nor counted by patience. Recurrent world
+    #: models set it to the teacher-forcing decay: while teacher forcing is on, the free-rollout
+    #: validation metric is erratic (18-140 g from one epoch to the next on the study preset)
+    #: and a lucky early epoch was selected whose force forecast was worse than the Baseline's.
+    #: If the run ends before any eligible epoch, its last epoch is selected.
+    select_after: int = 0
     select_metric: str = "train_loss"
     select_mode: str = "min"  #: "min" | "max"
     seed: int = 0
@@ -674,7 +680,10 @@ class Trainer:
             st.epoch += 1
             st.batch_in_epoch = 0
             st.train_loss_sum, st.train_batches, st.extra_sums = 0.0, 0, {}
-            best = self._improved(value)
+            eligible = st.epoch > cfg.select_after or (
+                st.best_epoch is None and st.epoch >= cfg.epochs
+            )
+            best = eligible and self._improved(value)
             if best:
                 st.best_metric, st.best_epoch, st.bad_epochs = value, st.epoch, 0
                 self._save_best()

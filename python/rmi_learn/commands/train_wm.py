@@ -283,9 +283,10 @@ def train(
         weight_decay=d.get("weight_decay", 0.0),
         grad_clip=1.0,
         patience=patience,
-        # Early stopping waits for the end of the teacher-forcing decay: before it, the
-        # free-rollout validation metric judges a model that is still trained on fed targets.
+        # Early stopping and selection wait for the end of the teacher-forcing decay: before
+        # it, the free-rollout validation metric judges a model still trained on fed targets.
         min_epochs=tf_epochs if net.recurrent else 0,
+        select_after=tf_epochs if net.recurrent else 0,
         select_metric=d["select"],
         select_mode="min",
         seed=seed,
