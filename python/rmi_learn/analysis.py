@@ -22,7 +22,6 @@ mean nothing physically.
 from __future__ import annotations
 
 import io
-import json
 import math
 import os
 from collections.abc import Mapping, Sequence
@@ -41,13 +40,11 @@ from rmi_learn.runs import (
     RunFileError,
     atomic_write_bytes,
     atomic_write_json,
-    iter_run_files,
     json_safe,
     read_run,
     read_run_meta,
-    run_id,
 )
-from rmi_learn.sweep import INDEX_FILE, INDEX_SCHEMA, RUNS_SUBDIR, _outcome_row, build_index
+from rmi_learn.sweep import INDEX_FILE, INDEX_SCHEMA, RUNS_SUBDIR, build_index, index_frame
 from rmi_learn.synthetic import SOURCE as SYNTHETIC_SOURCE
 
 #: Phases whose water removal is analysed. ``settle`` precedes contact and ``done`` is the
@@ -156,42 +153,6 @@ class RunTable:
 # Loading
 
 
-def _tree_index(root: Path) -> pl.DataFrame:
-    """Index rows of a bare runs tree (hive layout without ``runs/`` above it), with the
-    same rules as :func:`rmi_learn.sweep.build_index`, which only looks under ``OUT/runs``."""
-    rows: list[dict[str, Any]] = []
-    seen: set[Path] = set()
-    for path in iter_run_files(root):
-        meta = read_run_meta(path)
-        seen.add(path.parent)
-        orow = _outcome_row(meta)
-        failure = orow.get("failure")
-        rows.append(
-            {
-                "run_id": run_id(meta["params"]),
-                "status": "unstable" if failure and "unstable" in str(failure).lower() else "ok",
-                "error": None,
-                "path": path.relative_to(root).as_posix(),
-                **{k: meta["params"][k] for k in PARAM_KEYS},
-                **orow,
-            }
-        )
-    for epath in sorted(root.rglob(ERROR_FILE)):
-        if epath.parent in seen:
-            continue
-        rec = json.loads(epath.read_text())
-        rows.append(
-            {
-                "run_id": run_id(rec["params"]),
-                "status": rec.get("status", "failed"),
-                "error": rec.get("error"),
-                "path": epath.relative_to(root).as_posix(),
-                **{k: rec["params"][k] for k in PARAM_KEYS},
-            }
-        )
-    return _normalise_index(pl.DataFrame(rows, infer_schema_length=None) if rows else None)
-
-
 def _normalise_index(df: pl.DataFrame | None) -> pl.DataFrame:
     """Give an index every column the analysis reads, with fixed types (a grid where, say,
     no run failed has an all-null ``failure`` column of unknown type)."""
@@ -236,7 +197,7 @@ def load_runs(runs_dir: str | os.PathLike[str]) -> RunTable:
         elif (root / RUNS_SUBDIR).is_dir():
             index, origin = _normalise_index(build_index(root, write=False)), "sweep tree"
         else:
-            index, origin = _tree_index(root), "bare runs tree"
+            index, origin = _normalise_index(index_frame(root, root)), "bare runs tree"
     except (OSError, KeyError, ValueError, pl.exceptions.PolarsError) as exc:
         raise AnalysisError(f"cannot read the runs of {root}: {exc}") from exc
     if index.height == 0:

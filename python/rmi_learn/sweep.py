@@ -336,7 +336,16 @@ def build_index(out_dir: str | os.PathLike[str], write: bool = True) -> pl.DataF
     status ``unstable``.
     """
     out = Path(out_dir)
-    root = out / RUNS_SUBDIR
+    df = index_frame(out / RUNS_SUBDIR, out)
+    if write:
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(out / INDEX_FILE, lambda f: df.write_parquet(f))
+    return df
+
+
+def index_frame(root: Path, rel_to: Path) -> pl.DataFrame:
+    """The index rows (see :func:`build_index`) of every run directory below ``root``, with
+    ``path`` relative to ``rel_to``; an empty frame with the index columns if there is none."""
     rows: list[dict[str, Any]] = []
     seen: set[Path] = set()
     for path in sorted(root.rglob(RUN_FILE)) if root.exists() else []:
@@ -354,7 +363,7 @@ def build_index(out_dir: str | os.PathLike[str], write: bool = True) -> pl.DataF
                 "run_id": run_id(meta["params"]),
                 "status": "unstable" if failure and "unstable" in str(failure).lower() else "ok",
                 "error": None,
-                "path": path.relative_to(out).as_posix(),
+                "path": path.relative_to(rel_to).as_posix(),
                 **{k: meta["params"][k] for k in PARAM_KEYS},
                 **orow,
                 "n_records": int(stats["n"][0]),
@@ -371,7 +380,7 @@ def build_index(out_dir: str | os.PathLike[str], write: bool = True) -> pl.DataF
                 "run_id": run_id(params),
                 "status": rec.get("status", "failed"),
                 "error": rec.get("error"),
-                "path": epath.relative_to(out).as_posix(),
+                "path": epath.relative_to(rel_to).as_posix(),
                 **{k: params[k] for k in PARAM_KEYS},
                 "wall_s": rec.get("wall_s"),
             }
@@ -379,13 +388,9 @@ def build_index(out_dir: str | os.PathLike[str], write: bool = True) -> pl.DataF
     extra = sorted({k for r in rows for k in r} - set(INDEX_SCHEMA))
     columns = list(INDEX_SCHEMA) + extra
     data = {c: [r.get(c) for r in rows] for c in columns}
-    df = pl.DataFrame(
+    return pl.DataFrame(
         {c: pl.Series(c, data[c], dtype=INDEX_SCHEMA.get(c), strict=False) for c in columns}
     ).sort("run_id")
-    if write:
-        out.mkdir(parents=True, exist_ok=True)
-        atomic_write_bytes(out / INDEX_FILE, lambda f: df.write_parquet(f))
-    return df
 
 
 # --------------------------------------------------------------------------------------
