@@ -714,7 +714,8 @@ class Trainer:
                     file=sys.stderr,
                 )
             if not (self.out_dir / BEST_WEIGHTS).exists():
-                # Every epoch so far had a non-finite metric: keep the latest weights.
+                # No epoch selected yet (non-finite metrics, or all before ``select_after``):
+                # keep weights on disk so that an interrupted run still has a model file.
                 self._save_best()
             self._save_checkpoint()
             if st.finished:
