@@ -189,6 +189,9 @@ def test_simulation_round_trip(cfg: dict[str, Any]) -> None:
     # Water under its own weight carries a positive pressure of the right order (Pa).
     assert fluid["pressure"].max() > 0 and fluid["pressure"].max() < 1e5
     assert np.sum(fluid["mass"]) == pytest.approx(out["total_water"])
+    # M_L is the mass of the fluid flagged as inside the sponge, nothing else.
+    assert fluid["retained"].dtype == np.bool_ and fluid["retained"].shape == (nf,)
+    assert np.sum(fluid["mass"][fluid["retained"]]) == pytest.approx(obs["M_L"], rel=1e-12)
     bodies = sim.bodies()
     assert [b["name"] for b in bodies] == ["floor", "pad_left", "pad_right"]
     assert bnd["positions"].shape[0] == bnd["body"].shape[0] == bnd["volume"].shape[0]

@@ -282,7 +282,8 @@ impl PySimulation {
     /// Particle data of one kind as a dict of numpy arrays (SI units).
     ///
     /// ``"fluid"``: positions (N, 3) m, velocities (N, 3) m/s, mass kg, density kg/m^3,
-    /// pressure Pa, porosity (local, -), skeleton_cover (-), id.
+    /// pressure Pa, porosity (local, -), skeleton_cover (-), retained (bool: inside the
+    /// sponge's deformed volume, what ``M_L`` sums), id.
     /// ``"solid"`` (the sponge skeleton): positions, velocities, mass, density (bulk, dry),
     /// pressure (skeleton pressure unknown times its density, Pa), porosity (current local),
     /// saturation (-), rest_positions, id.
@@ -338,6 +339,8 @@ impl PySimulation {
         d.set_item("porosity", PyArray1::from_vec(py, field(&f.porosity)))?;
         if kind == "fluid" {
             d.set_item("skeleton_cover", PyArray1::from_vec(py, field(&f.skeleton_cover)))?;
+            let inside: Vec<bool> = (0..nf).map(|a| sim.retained().get(a).copied().unwrap_or(false)).collect();
+            d.set_item("retained", PyArray1::from_vec(py, inside))?;
         } else {
             d.set_item("saturation", PyArray1::from_vec(py, field(&f.saturation)))?;
             d.set_item("rest_positions", vec3_array(py, &sim.rest().x0)?)?;

@@ -99,7 +99,7 @@ impl Default for PorousMaterial {
             youngs_modulus: 250e3,
             poisson_ratio: 0.3,
             compressible: true,
-            permeability: 1e-9,
+            permeability: 3e-11,
             adhesion: 21.0,
             adhesion_reference_spacing: 0.005,
             adhesion_falloff: 0.5,

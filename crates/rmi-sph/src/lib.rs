@@ -46,6 +46,7 @@ pub mod par;
 pub mod particles;
 pub mod presets;
 pub mod pressure;
+pub mod retention;
 pub mod scene;
 pub mod simulation;
 pub mod snapshot;

@@ -68,6 +68,16 @@ impl NeighbourLists {
         self.chunks.iter().map(|c| c.j.len()).collect()
     }
 
+    /// Number of particles the lists cover (0 before the first build).
+    pub fn len(&self) -> usize {
+        self.chunks.iter().map(|c| c.start.len().saturating_sub(1)).sum()
+    }
+
+    /// Whether the lists cover no particle.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
     /// Total number of stored pairs.
     pub fn pairs(&self) -> usize {
         self.chunks.iter().map(|c| c.j.len()).sum()

@@ -1,10 +1,9 @@
 //! The interaction state y_t (paper Eq. 7) and the extras recorded beside it.
 //!
 //! Definitions (SI units):
-//! - *Retained* liquid: fluid particles whose skeleton coverage `sum_s V W(x_f - x_s)` is at
-//!   least [`RETAINED_COVER`]. The coverage is about 1 inside the sponge and 1/2 on its
-//!   surface, and falls to 0 one kernel support away, so water counts as retained while it
-//!   is inside or on the sponge and as expelled once it has left it. `M_L` is their mass,
+//! - *Retained* liquid: fluid particles inside the sponge's deformed volume, found by
+//!   mapping each one back to the skeleton's rest frame (see [`crate::retention`]). Water
+//!   pressed out onto the surface or dripping off counts as expelled. `M_L` is their mass,
 //!   `M_expelled` the rest; both sum to the initial water mass exactly.
 //! - Sponge volume: each skeleton particle occupies `d^3` at rest and `d^3 (1 - phi) /
 //!   (1 - phi_s)` at its current local porosity `phi_s`; `V_sponge` is the sum and `V_pore`
@@ -25,9 +24,6 @@ use crate::controller::Phase;
 use crate::friction::ContactFriction;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
-
-/// Skeleton coverage from which a fluid particle counts as retained (dimensionless).
-pub const RETAINED_COVER: f64 = 0.25;
 
 /// Regularises the imbalance `alpha_F` (N).
 pub const EPS_F: f64 = 1e-6;

@@ -97,6 +97,10 @@ pub struct PorousObject {
     pub lambda_trace: f64,
     /// Lambda (Pa) used by the bloating term.
     pub lambda: f64,
+    /// Lower corner of the object's rest volume (its block) in m.
+    pub rest_min: nalgebra::Vector3<f64>,
+    /// Upper corner of the object's rest volume in m.
+    pub rest_max: nalgebra::Vector3<f64>,
 }
 
 /// Drag lattice constant c of physics.md sec. 3.1: `sum_s V (u.x)/(|x|^2+eps) grad W ~ -c u/H^2`.

@@ -132,6 +132,8 @@ pub fn build(cfg: &SimConfig, kernel: &CubicKernel) -> Built {
             mu,
             lambda_trace: if cfg.elasticity_reference_trace { 1.0 } else { lambda },
             lambda,
+            rest_min: Vector3::from(b.min),
+            rest_max: Vector3::from(b.max),
         });
     }
     let rest = rest_data(&p, &fixed, kernel);

@@ -13,6 +13,7 @@ use crate::neighbours::NeighbourLists;
 use crate::nonpressure::{self, CgStats, CgWork, NonPressureSettings};
 use crate::particles::{Particles, PorousObject, SolidRest, SolidState};
 use crate::pressure::{self, PressureSettings, PressureStats, PressureWork};
+use crate::retention;
 use crate::scene;
 use crate::snapshot::Snapshot;
 use nalgebra::Vector3;
@@ -63,6 +64,8 @@ pub struct Simulation {
     contacts: Vec<Contact>,
     /// Skeleton particles whose contact pushed in the last step (contact hysteresis).
     pub(crate) contact_active: Vec<bool>,
+    /// Fluid particles inside a sponge's deformed volume after the last step (retention.rs).
+    retained: Vec<bool>,
 }
 
 /// Default thread count: `RMI_NUM_THREADS`, else `RAYON_NUM_THREADS`, else the core count.
@@ -118,6 +121,7 @@ impl Simulation {
             stats: StepStats::default(),
             contacts: Vec::new(),
             contact_active: Vec::new(),
+            retained: Vec::new(),
             cfg,
         };
         sim.refresh_rho0();
@@ -296,6 +300,17 @@ impl Simulation {
                 apply(f, &perm);
             }
         }
+        if self.retained.len() >= perm.len() {
+            apply(&mut self.retained, &perm);
+        }
+    }
+
+    fn update_retained(&mut self) {
+        let pool = self.pool.clone();
+        self.retained = pool.install(|| {
+            let margin = self.cfg.particle_radius;
+            retention::inside(&self.p, &self.nb, &self.rest, &self.solid, &self.objects, &self.kernel, margin)
+        });
     }
 
     /// Rebuilds neighbour lists and density, porosity and saturation fields at the current
@@ -309,6 +324,7 @@ impl Simulation {
             density::compute(&self.ctx(), &mut dens);
             self.dens = dens;
         });
+        self.update_retained();
     }
 
     fn build_neighbours(&mut self) {
@@ -514,6 +530,7 @@ impl Simulation {
             ],
         };
         self.contacts = contacts;
+        self.update_retained();
         // Re-sort only after a committed step, so that a failed step changes nothing.
         if self.cfg.reorder_every > 0 && self.step.is_multiple_of(self.cfg.reorder_every as u64) {
             self.reorder_fluid();
@@ -648,6 +665,13 @@ impl Simulation {
     pub fn skeleton_cover(&self) -> &[f64] {
         let nf = self.p.n_fluid;
         &self.dens.skeleton_cover[..nf.min(self.dens.skeleton_cover.len())]
+    }
+
+    /// Whether each fluid particle lies inside a sponge's deformed volume (see
+    /// [`crate::retention`]), at the positions after the last step (or of
+    /// [`Simulation::update_fields`]); empty before either.
+    pub fn retained(&self) -> &[bool] {
+        &self.retained
     }
 
     /// Current sponge volume, pore volume (m^3) and pore-volume-weighted mean saturation of

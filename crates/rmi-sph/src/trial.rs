@@ -10,7 +10,7 @@ use crate::controller::{Action, ControlInput, Controller, ControllerParams, Fail
 use crate::friction::{ContactMemory, FrictionParams};
 use crate::gate::{Gate, GateInput, GateParams};
 use crate::gripper::{add_pads, Gripper, GripperConfig};
-use crate::observe::{summarise, Observation, RETAINED_COVER};
+use crate::observe::{summarise, Observation};
 use crate::snapshot::Snapshot;
 use crate::{presets, Result, RmiError, Simulation};
 use nalgebra::Vector3;
@@ -292,15 +292,16 @@ impl Trial {
         Ok(())
     }
 
-    /// Retained liquid: mass of fluid particles with skeleton coverage >= RETAINED_COVER.
+    /// Retained liquid: mass of the fluid inside the sponge's deformed volume (kg), and the
+    /// total liquid mass.
     fn retained(&self) -> (f64, f64) {
         let p = self.sim.particles();
-        let cover = self.sim.skeleton_cover();
+        let inside = self.sim.retained();
         let mut total = 0.0;
         let mut kept = 0.0;
         for a in 0..p.n_fluid {
             total += p.mass[a];
-            if cover.get(a).is_some_and(|c| *c >= RETAINED_COVER) {
+            if inside.get(a).copied().unwrap_or(false) {
                 kept += p.mass[a];
             }
         }

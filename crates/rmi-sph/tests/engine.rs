@@ -148,3 +148,23 @@ fn fields_follow_particles_through_resorting() {
         assert!((x.1 - y.1).abs() <= 1e-9, "density ratio {} vs {}", x.1, y.1);
     }
 }
+
+#[test]
+fn retained_liquid_is_the_water_inside_the_sponge() {
+    // Pore water is inside; a slab of water one spacing beyond the face, where the
+    // skeleton's kernel still reaches it, is not. The block spans |x| <= 3 cm at r = 5 mm.
+    let mut cfg = small_sponge();
+    cfg.scene.fluid_blocks.push(FluidBlock { min: [0.035, -0.02, 0.02], max: [0.055, 0.02, 0.04], velocity: [0.0; 3] });
+    let mut sim = Simulation::new(cfg, Some(2)).unwrap();
+    assert!(sim.retained().is_empty(), "no fields before a step or update_fields");
+    sim.update_fields();
+    let p = sim.particles();
+    let slab: Vec<usize> = (0..p.n_fluid).filter(|&a| p.x[a].x > 0.034).collect();
+    assert_eq!(slab.len(), 2 * 4 * 2);
+    for a in 0..p.n_fluid {
+        let outside = slab.contains(&a);
+        assert_eq!(sim.retained()[a], !outside, "particle at {:?}", p.x[a]);
+    }
+    let nearest = slab.iter().map(|&a| sim.skeleton_cover()[a]).fold(0.0, f64::max);
+    assert!(nearest > 0.0, "the slab must lie within the skeleton's kernel support");
+}

@@ -78,21 +78,44 @@ fn liquid_mass_is_conserved_and_the_record_is_consistent() {
     assert!(o.lift_success && o.stable_squeeze, "{o:?}");
 }
 
-/// Water per phase in a saturated sponge. On the floor the water is supported and stays;
-/// clamping pushes some out; once lifted the sponge drains under gravity. The paper's Fig. 5
-/// finds lifting changes retained water little: at the default adhesion this model does not
-/// reproduce that (see the README's limitations), and this test pins what it does instead.
+/// Water per phase in a saturated sponge, the paper's Fig. 5 finding: the resting sponge
+/// holds its water, the clamp (ramp and hold) moves more than lifting does, and from one
+/// state at the start of the squeeze a harder squeeze removes more than holding on. At the
+/// datasets' resolution (r = 8 mm, dt = 2 ms) with the paper's ramp and hold of 1 s each.
 #[test]
-fn saturated_sponge_keeps_water_on_the_floor_and_loses_it_to_clamping_and_drainage() {
-    let r = run_trial(short(150.0, 200.0), Some(2)).unwrap();
-    let o = &r.outcome;
+fn clamping_dominates_transport_and_squeezing_harder_removes_more() {
+    let mut c = short(100.0, 100.0);
+    c.particle_radius = 0.008;
+    c.dt = 0.002;
+    let k = &mut c.controller;
+    k.ramp_time = 1.0;
+    k.hold_time = 1.0;
+    k.wait_time = 0.3;
+    k.squeeze_ramp_time = 0.5;
+    k.squeeze_hold_time = 1.0;
+    let mut t = Trial::new(c, Some(2)).unwrap();
+    while t.phase() < Phase::Squeeze {
+        t.step().unwrap();
+    }
+    let mut hard = Trial::from_bytes(&t.to_bytes(), Some(2)).unwrap();
+    hard.set_action(Some(Action { force_target: 300.0, velocity: None })).unwrap();
+    while !t.finished() {
+        t.step().unwrap();
+    }
+    while !hard.finished() {
+        hard.step().unwrap();
+    }
+    let o = t.outcome(0.0);
     let w = |name: &str| o.water_removed.iter().find(|(n, _)| n == name).map_or(0.0, |x| x.1);
+    let squeezed = hard.outcome(0.0).water_removed.iter().find(|(n, _)| n == "squeeze").map_or(0.0, |x| x.1);
     println!("water removed (g): {:?}", o.water_removed.iter().map(|(n, x)| (n, x * 1e3)).collect::<Vec<_>>());
+    println!("squeeze phase at 300 N instead of 100 N: {:.1} g", squeezed * 1e3);
+    assert!(o.lift_success, "{o:?}");
     assert_eq!(w("settle") + w("close"), 0.0, "the resting sponge must hold its water");
-    assert!(w("ramp") + w("hold") > 0.0, "clamping must push water out");
-    assert!(w("lift") + w("waiting") > 0.0, "a lifted saturated sponge drains");
-    assert!(w("squeeze") > 0.0, "squeezing harder pushes more out");
-    assert!(o.final_water < o.initial_water && o.final_water > 0.5 * o.initial_water);
+    let clamp = w("ramp") + w("hold");
+    assert!(clamp > 0.02 * o.initial_water, "clamping must push water out: {clamp} kg");
+    assert!(clamp > w("lift") + w("waiting"), "lifting must change retained water less than clamping");
+    assert!(squeezed > w("squeeze") + 0.01 * o.initial_water, "squeezing harder must remove more water");
 }
 
 fn replay(mut t: Trial, n: usize) -> Vec<[f64; 23]> {

@@ -255,7 +255,10 @@ fn buoyancy_of_submerged_skeleton() {
     let r = 0.005;
     let phi = 0.6;
     let mut cfg = rmi_sph::presets::water_column(r, 0.14, 0.16);
-    let material = PorousMaterial { porosity: phi, adhesion: 0.0, ..Default::default() };
+    // Buoyancy is a rest state. The tank sloshes after the carve-out start and settles
+    // through the skeleton; at the default 3e-11 m^2 the force still swings 0.83-1.21 N
+    // between 0.5 and 3 s, so this case uses a permeable skeleton that rests within 1 s.
+    let material = PorousMaterial { porosity: phi, adhesion: 0.0, permeability: 1e-9, ..Default::default() };
     cfg.scene.porous_blocks.push(PorousBlock {
         min: [-0.03, -0.03, 0.04],
         max: [0.03, 0.03, 0.10],
@@ -291,7 +294,7 @@ fn buoyancy_of_submerged_skeleton() {
     println!("buoyancy: {:.3} N vs (1-phi) V rho g = {:.3} N ({:.1} %)", fz, expected, 100.0 * err);
     record(
         "buoyancy",
-        "fixed 6 cm skeleton submerged, phi = 0.6, r = 5 mm",
+        "fixed 6 cm skeleton submerged, phi = 0.6, k = 1e-9 m^2, r = 5 mm",
         &format!("{fz:.3} N"),
         &format!("(1-phi) V rho g = {expected:.3} N"),
         &format!("{:.1} %", 100.0 * err),
