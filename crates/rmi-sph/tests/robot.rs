@@ -4,8 +4,9 @@
 use rmi_sph::controller::{Action, Phase};
 use rmi_sph::trial::{run_trial, Trial, TrialConfig};
 
-/// A short trial: 8 x 8 x 18 cm sponge at r = 5 mm with brief phases.
-fn short(hold: f64, squeeze: f64) -> TrialConfig {
+/// A trial of the 8 x 8 x 18 cm sponge at r = 5 mm with phase lengths (s) settle, ramp,
+/// hold, wait, squeeze ramp and squeeze hold.
+fn timed(hold: f64, squeeze: f64, t: [f64; 6]) -> TrialConfig {
     let mut c = TrialConfig {
         size: rmi_sph::presets::SPONGE_SIZES[0],
         hold_force: hold,
@@ -13,13 +14,13 @@ fn short(hold: f64, squeeze: f64) -> TrialConfig {
         ..Default::default()
     };
     let k = &mut c.controller;
-    k.settle_time = 0.05;
-    k.ramp_time = 0.3;
-    k.hold_time = 0.2;
-    k.wait_time = 0.2;
-    k.squeeze_ramp_time = 0.1;
-    k.squeeze_hold_time = 0.05;
+    [k.settle_time, k.ramp_time, k.hold_time, k.wait_time, k.squeeze_ramp_time, k.squeeze_hold_time] = t;
     c
+}
+
+/// A short trial with brief phases.
+fn short(hold: f64, squeeze: f64) -> TrialConfig {
+    timed(hold, squeeze, [0.05, 0.3, 0.2, 0.2, 0.1, 0.05])
 }
 
 /// A dry, dense block (1000 kg/m^3, so the friction limit is well above the contact
@@ -84,15 +85,9 @@ fn liquid_mass_is_conserved_and_the_record_is_consistent() {
 /// datasets' resolution (r = 8 mm, dt = 2 ms) with the paper's ramp and hold of 1 s each.
 #[test]
 fn clamping_dominates_transport_and_squeezing_harder_removes_more() {
-    let mut c = short(100.0, 100.0);
+    let mut c = timed(100.0, 100.0, [0.05, 1.0, 1.0, 0.3, 0.5, 1.0]);
     c.particle_radius = 0.008;
     c.dt = 0.002;
-    let k = &mut c.controller;
-    k.ramp_time = 1.0;
-    k.hold_time = 1.0;
-    k.wait_time = 0.3;
-    k.squeeze_ramp_time = 0.5;
-    k.squeeze_hold_time = 1.0;
     let mut t = Trial::new(c, Some(2)).unwrap();
     while t.phase() < Phase::Squeeze {
         t.step().unwrap();
