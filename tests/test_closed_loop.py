@@ -50,6 +50,8 @@ OVERRIDES: dict[str, Any] = {
     "squeeze_ramp_time": 0.1,
     "squeeze_hold_time": 0.6,
     "lift_speed": 0.06,
+    # The tiny trial's permeable foam (tests/tiny_trial.py): the anchors below need its timing.
+    "material": {"permeability": 1e-9},
 }
 #: Anchors (kept-row index t): end of the hold (the lift gate opens inside the chunk), the
 #: lift, the squeeze. The first two lie in the close..lift segment, the last after waiting.
