@@ -43,30 +43,29 @@ pub fn inside(
         .into_par_iter()
         .map(|a| {
             let n = nb.of(a);
-            // One rest-frame estimate per object; scenes hold one sponge, so a short list.
-            let mut acc: Vec<(u16, f64, Vector3<f64>)> = Vec::new();
-            for &b in &n.j[n.n_fluid..] {
-                let b = b as usize;
-                let s = b - nf;
-                let dx = p.x[a] - p.x[b];
-                let w = kernel.w(dx.norm());
-                if w <= 0.0 {
-                    continue;
-                }
-                let x0 = rest.x0[s] + solid.rotation[s].inverse_transform_vector(&dx);
-                let m = p.material[b];
-                match acc.iter_mut().find(|e| e.0 == m) {
-                    Some(e) => {
-                        e.1 += w;
-                        e.2 += w * x0;
+            // One rest-frame estimate per object (scenes hold one sponge): no allocation in
+            // this per-particle, per-step pass.
+            objects.iter().enumerate().any(|(k, o)| {
+                let material = (k + 1) as u16;
+                let (mut wsum, mut xw) = (0.0, Vector3::zeros());
+                for &b in &n.j[n.n_fluid..] {
+                    let b = b as usize;
+                    if p.material[b] != material {
+                        continue;
                     }
-                    None => acc.push((m, w, w * x0)),
+                    let s = b - nf;
+                    let dx = p.x[a] - p.x[b];
+                    let w = kernel.w(dx.norm());
+                    if w > 0.0 {
+                        wsum += w;
+                        xw += w * (rest.x0[s] + solid.rotation[s].inverse_transform_vector(&dx));
+                    }
                 }
-            }
-            acc.iter().any(|&(m, w, xw)| {
-                let o = &objects[m as usize - 1];
-                let x = xw / w;
-                (0..3).all(|k| x[k] >= o.rest_min[k] - margin && x[k] <= o.rest_max[k] + margin)
+                if wsum <= 0.0 {
+                    return false;
+                }
+                let x = xw / wsum;
+                (0..3).all(|i| x[i] >= o.rest_min[i] - margin && x[i] <= o.rest_max[i] + margin)
             })
         })
         .collect()

@@ -2,7 +2,7 @@
 //! phase, liquid mass bookkeeping, determinism and saved states.
 
 use rmi_sph::controller::{Action, Phase};
-use rmi_sph::trial::{run_trial, Trial, TrialConfig};
+use rmi_sph::trial::{run_trial, Outcome, Trial, TrialConfig};
 
 /// A trial of the 8 x 8 x 18 cm sponge at r = 5 mm with phase lengths (s) settle, ramp,
 /// hold, wait, squeeze ramp and squeeze hold.
@@ -101,8 +101,8 @@ fn clamping_dominates_transport_and_squeezing_harder_removes_more() {
         hard.step().unwrap();
     }
     let o = t.outcome(0.0);
-    let w = |name: &str| o.water_removed.iter().find(|(n, _)| n == name).map_or(0.0, |x| x.1);
-    let squeezed = hard.outcome(0.0).water_removed.iter().find(|(n, _)| n == "squeeze").map_or(0.0, |x| x.1);
+    let w = |name: &str| removed(&o, name);
+    let squeezed = removed(&hard.outcome(0.0), "squeeze");
     println!("water removed (g): {:?}", o.water_removed.iter().map(|(n, x)| (n, x * 1e3)).collect::<Vec<_>>());
     println!("squeeze phase at 300 N instead of 100 N: {:.1} g", squeezed * 1e3);
     assert!(o.lift_success, "{o:?}");
@@ -111,6 +111,11 @@ fn clamping_dominates_transport_and_squeezing_harder_removes_more() {
     assert!(clamp > 0.02 * o.initial_water, "clamping must push water out: {clamp} kg");
     assert!(clamp > w("lift") + w("waiting"), "lifting must change retained water less than clamping");
     assert!(squeezed > w("squeeze") + 0.01 * o.initial_water, "squeezing harder must remove more water");
+}
+
+/// Water removed (kg) during phase `name` of a finished trial.
+fn removed(o: &Outcome, name: &str) -> f64 {
+    o.water_removed.iter().find(|(n, _)| n == name).map_or(0.0, |x| x.1)
 }
 
 fn replay(mut t: Trial, n: usize) -> Vec<[f64; 23]> {
