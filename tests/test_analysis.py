@@ -26,7 +26,7 @@ from rmi_learn.analysis import (
 )
 from rmi_learn.cli import main as cli_main
 from rmi_learn.runs import write_error
-from rmi_learn.sweep import build_index
+from rmi_learn.sweep import INDEX_SCHEMA, build_index
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -59,22 +59,23 @@ def _row(
     }
 
 
+#: The index columns these synthetic rows fill, typed as the sweep's index types them.
+_COLUMNS = (
+    "run_id",
+    "status",
+    "size_cm",
+    "porosity",
+    "F_hold",
+    "F_squeeze",
+    "seed",
+    "lift_success",
+    "stable_squeeze",
+    "water_removed_squeeze",
+)
+
+
 def _frame(rows: list[dict[str, Any]]) -> pl.DataFrame:
-    return pl.DataFrame(
-        rows,
-        schema={
-            "run_id": pl.String,
-            "status": pl.String,
-            "size_cm": pl.Int64,
-            "porosity": pl.Float64,
-            "F_hold": pl.Float64,
-            "F_squeeze": pl.Float64,
-            "seed": pl.Int64,
-            "lift_success": pl.Boolean,
-            "stable_squeeze": pl.Boolean,
-            "water_removed_squeeze": pl.Float64,
-        },
-    )
+    return pl.DataFrame(rows, schema={c: INDEX_SCHEMA[c] for c in _COLUMNS})
 
 
 def _association_index(

@@ -33,6 +33,7 @@ from rmi_learn.closed_loop import (
 from rmi_learn.runs import RUN_COLUMNS, read_run, write_run
 from rmi_learn.schema import CONTROL_DT
 from rmi_learn.sweep import RunSpec, run_sweep
+from tiny_trial import TINY
 
 PARAMS: dict[str, Any] = {
     "size_cm": 8,
@@ -41,18 +42,9 @@ PARAMS: dict[str, Any] = {
     "F_squeeze": 150.0,
     "seed": 0,
 }
-OVERRIDES: dict[str, Any] = {
-    "dt": 2e-3,
-    "settle_time": 0.05,
-    "ramp_time": 0.1,
-    "hold_time": 0.1,
-    "wait_time": 0.05,
-    "squeeze_ramp_time": 0.1,
-    "squeeze_hold_time": 0.6,
-    "lift_speed": 0.06,
-    # The tiny trial's permeable foam (tests/tiny_trial.py): the anchors below need its timing.
-    "material": {"permeability": 1e-9},
-}
+#: The tiny trial (tests/tiny_trial.py, its permeable foam included: the anchors below need
+#: its timing) with a longer squeeze hold and a slower lift.
+OVERRIDES: dict[str, Any] = {**TINY, "squeeze_hold_time": 0.6, "lift_speed": 0.06}
 #: Anchors (kept-row index t): end of the hold (the lift gate opens inside the chunk), the
 #: lift, the squeeze. The first two lie in the close..lift segment, the last after waiting.
 ANCHORS = (6, 14, 48)
