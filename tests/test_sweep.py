@@ -253,6 +253,42 @@ def test_local_sweep_records_failures_skips_done_and_indexes(tmp_path: Path) -> 
         )
 
 
+def other_engine_make_config(*args: Any, **overrides: Any) -> dict[str, Any]:
+    """The same grid point as ``fake_make_config`` builds, on an engine whose default
+    permeability changed."""
+    return {**fake_make_config(*args, **overrides), "material": {"permeability": 3e-11}}
+
+
+def test_resume_refuses_runs_of_another_engine_config(tmp_path: Path) -> None:
+    out = tmp_path / "sweep"
+    g = grid(hold_forces_N=[30], porosities=[0.5])
+    specs = expand_grid(g)
+    run_sweep(
+        specs,
+        out,
+        runner=fake_runner,
+        make_config=fake_make_config,
+        workers=0,
+        progress=False,
+        grid=g,
+    )
+    before = {p: p.read_bytes() for p in (out / "runs").rglob("*.parquet")}
+    with pytest.raises(
+        ValueError, match=r"2 finished run\(s\).*material: <absent> -> \{'permeability': 3e-11\}"
+    ):
+        run_sweep(
+            specs,
+            out,
+            runner=fake_runner,
+            make_config=other_engine_make_config,
+            workers=0,
+            progress=False,
+            grid=g,
+        )
+    # Nothing was touched: the old runs stay as they were.
+    assert {p: p.read_bytes() for p in (out / "runs").rglob("*.parquet")} == before
+
+
 def test_polars_queries_over_the_grid(tmp_path: Path) -> None:
     out = tmp_path / "sweep"
     g = grid(hold_forces_N=[20, 150], squeeze_forces_N=[150, 300])

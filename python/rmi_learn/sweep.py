@@ -205,6 +205,65 @@ def is_done(run_dir: Path, retry_failed: bool = False) -> bool:
     return (not retry_failed) and (run_dir / ERROR_FILE).exists()
 
 
+def _config_of(spec: RunSpec, make_config: Any) -> dict[str, Any]:
+    """The trial config the engine builds for ``spec`` (``make_config`` or
+    ``rmi_sph.trial_config``)."""
+    make = _resolve(make_config, "rmi_sph:trial_config")
+    p = spec.params
+    config: dict[str, Any] = make(
+        p["size_cm"],
+        p["porosity"],
+        p["F_hold"],
+        p["F_squeeze"],
+        spec.radius,
+        p["seed"],
+        **spec.overrides,
+    )
+    return config
+
+
+def _differences(old: Any, new: Any, path: str = "") -> list[str]:
+    """Dotted paths where two JSON values differ, with both values."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        out: list[str] = []
+        for k in sorted(set(old) | set(new)):
+            sub = f"{path}.{k}" if path else str(k)
+            if k not in old or k not in new:
+                was = repr(old[k]) if k in old else "<absent>"
+                now = repr(new[k]) if k in new else "<absent>"
+                out.append(f"{sub}: {was} -> {now}")
+            else:
+                out.extend(_differences(old[k], new[k], sub))
+        return out
+    return [] if old == new else [f"{path}: {old!r} -> {new!r}"]
+
+
+def check_stale(specs: Iterable[RunSpec], runs_root: Path, make_config: Any = None) -> None:
+    """Refuse to resume over finished runs that the current engine would configure
+    differently (a changed default, say): their data would silently mix two physics.
+
+    Raises ``ValueError`` naming the number of stale runs, one of them and the fields that
+    differ; the caller removes them or sweeps into a new directory.
+    """
+    stale: list[tuple[str, list[str]]] = []
+    for spec in specs:
+        path = run_path(runs_root, spec.params)
+        if not path.exists():
+            continue
+        stored = read_run_meta(path)["config"]
+        diff = _differences(stored, json.loads(json.dumps(_config_of(spec, make_config))))
+        if diff:
+            stale.append((spec.run_id, diff))
+    if stale:
+        run_id, diff = stale[0]
+        raise ValueError(
+            f"{len(stale)} finished run(s) under {runs_root} were made with another trial config "
+            f"than this engine builds now, e.g. {run_id}: "
+            + "; ".join(diff[:4])
+            + f". Sweep into a new --out directory, or delete {runs_root} to recompute them."
+        )
+
+
 def _status_of_exception(exc: BaseException) -> str:
     names = {c.__name__ for c in type(exc).__mro__}
     return "unstable" if "SimulationUnstableError" in names else "failed"
@@ -231,24 +290,14 @@ def execute_run(
     t0 = time.perf_counter()
     config: dict[str, Any] | None = None
     try:
-        make = _resolve(make_config, "rmi_sph:trial_config")
+        config = _config_of(spec, make_config)
         run = _resolve(runner, "rmi_sph:run_trial")
-        p = spec.params
-        config = make(
-            p["size_cm"],
-            p["porosity"],
-            p["F_hold"],
-            p["F_squeeze"],
-            spec.radius,
-            p["seed"],
-            **spec.overrides,
-        )
         result = run(config, num_threads=threads_per_run)
         wall = time.perf_counter() - t0
         outcome = dict(result["outcome"])
         outcome.setdefault("wall_s", wall)  # the engine's own figure wins when given
         outcome["sweep_wall_s"] = wall  # trial_config + run_trial as this worker saw it
-        write_run(path, result["columns"], config, p, outcome)
+        write_run(path, result["columns"], config, spec.params, outcome)
     except (Exception, KeyboardInterrupt) as exc:  # noqa: BLE001 - recorded, sweep goes on
         if isinstance(exc, KeyboardInterrupt):
             raise
@@ -519,6 +568,7 @@ def _sweep_locked(
         raise ValueError("the grid names some runs twice")
     if threads_per_run < 1:
         raise ValueError("threads_per_run must be at least 1")
+    check_stale(specs, runs_root, make_config)
     pending = [s for s in specs if not is_done(run_path(runs_root, s.params).parent, retry_failed)]
     counts = {"ok": 0, "failed": 0, "unstable": 0}
     t0 = time.perf_counter()

@@ -380,37 +380,7 @@ pub fn solve(
         let xa = &mut x[con.particle as usize];
         *xa += con.normal * (con.target - con.normal.dot(xa));
     }
-    op.apply(&x, &mut w.ap, &mut w.prl, sat);
-    w.r.par_iter_mut().enumerate().for_each(|(a, r)| *r = w.b[a] - w.ap[a]);
-    filter(&mut w.r, &normals);
-    let mut bf = w.b.clone();
-    filter(&mut bf, &normals);
-    let bnorm = dot(&bf, &bf).sqrt().max(1e-300);
-    let minv = &w.minv;
-    w.z.par_iter_mut().enumerate().for_each(|(a, z)| *z = minv[a] * w.r[a]);
-    filter(&mut w.z, &normals);
-    w.p.copy_from_slice(&w.z);
-    let mut rz = dot(&w.r, &w.z);
-    let mut stats = CgStats { iterations: 0, residual: dot(&w.r, &w.r).sqrt() / bnorm };
-    while stats.residual > s.tolerance && stats.iterations < s.max_iterations {
-        op.apply(&w.p, &mut w.ap, &mut w.prl, sat);
-        filter(&mut w.ap, &normals);
-        let pap = dot(&w.p, &w.ap);
-        if pap <= 0.0 || !pap.is_finite() {
-            break;
-        }
-        let alpha = rz / pap;
-        x.par_iter_mut().zip(w.p.par_iter()).for_each(|(xi, pi)| *xi += alpha * pi);
-        w.r.par_iter_mut().zip(w.ap.par_iter()).for_each(|(ri, api)| *ri -= alpha * api);
-        w.z.par_iter_mut().enumerate().for_each(|(a, z)| *z = minv[a] * w.r[a]);
-        filter(&mut w.z, &normals);
-        let rz_new = dot(&w.r, &w.z);
-        let beta = rz_new / rz;
-        rz = rz_new;
-        w.p.par_iter_mut().zip(w.z.par_iter()).for_each(|(pi, zi)| *pi = zi + beta * *pi);
-        stats.iterations += 1;
-        stats.residual = dot(&w.r, &w.r).sqrt() / bnorm;
-    }
+    let stats = pcg(&op, &mut x, &normals, s.tolerance, s.max_iterations, w);
     // Constraint impulses: what the rows still lack, A x - b, along the normals.
     let impulses: Vec<f64> = if constraints.is_empty() {
         Vec::new()
@@ -426,6 +396,94 @@ pub fn solve(
         *vi = *xi;
     });
     (stats, impulses)
+}
+
+/// Preconditioned CG on `A x = w.b` from the guess in `x`, with the rows' normal components
+/// along `normals` held fixed (empty: no constraints). `w.minv` must hold the preconditioner.
+fn pcg(
+    op: &Op,
+    x: &mut [Vector3<f64>],
+    normals: &[Vector3<f64>],
+    tolerance: f64,
+    max_iterations: u32,
+    w: &mut CgWork,
+) -> CgStats {
+    let sat = &op.dens.saturation;
+    op.apply(x, &mut w.ap, &mut w.prl, sat);
+    w.r.par_iter_mut().enumerate().for_each(|(a, r)| *r = w.b[a] - w.ap[a]);
+    filter(&mut w.r, normals);
+    let mut bf = w.b.clone();
+    filter(&mut bf, normals);
+    let bnorm = dot(&bf, &bf).sqrt().max(1e-300);
+    let minv = &w.minv;
+    w.z.par_iter_mut().enumerate().for_each(|(a, z)| *z = minv[a] * w.r[a]);
+    filter(&mut w.z, normals);
+    w.p.copy_from_slice(&w.z);
+    let mut rz = dot(&w.r, &w.z);
+    let mut stats = CgStats { iterations: 0, residual: dot(&w.r, &w.r).sqrt() / bnorm };
+    while stats.residual > tolerance && stats.iterations < max_iterations {
+        op.apply(&w.p, &mut w.ap, &mut w.prl, sat);
+        filter(&mut w.ap, normals);
+        let pap = dot(&w.p, &w.ap);
+        if pap <= 0.0 || !pap.is_finite() {
+            break;
+        }
+        let alpha = rz / pap;
+        x.par_iter_mut().zip(w.p.par_iter()).for_each(|(xi, pi)| *xi += alpha * pi);
+        w.r.par_iter_mut().zip(w.ap.par_iter()).for_each(|(ri, api)| *ri -= alpha * api);
+        w.z.par_iter_mut().enumerate().for_each(|(a, z)| *z = minv[a] * w.r[a]);
+        filter(&mut w.z, normals);
+        let rz_new = dot(&w.r, &w.z);
+        let beta = rz_new / rz;
+        rz = rz_new;
+        w.p.par_iter_mut().zip(w.z.par_iter()).for_each(|(pi, zi)| *pi = zi + beta * *pi);
+        stats.iterations += 1;
+        stats.residual = dot(&w.r, &w.r).sqrt() / bnorm;
+    }
+    stats
+}
+
+/// Implicit response of the coupled system to a velocity increment `dv` (m/s), such as the
+/// pressure solve's: solves `A x = m dv` with the operator of [`solve`] (viscosity, drag,
+/// adhesion, linearised elasticity) and the same contact constraints held, and writes x
+/// into `dv`. Because `A` is linear, the step's velocity v* + x equals the implicit solve
+/// with the pressure force on its right-hand side.
+///
+/// The pressure solve moves water as if it were free; through a sponge's pores the drag
+/// takes most of that impulse within the same step and the skeleton's elasticity carries
+/// it, so that pore water seeps at the Darcy speed the pressure gradient drives. Every pair
+/// term is equal and opposite, so momentum is conserved.
+#[allow(clippy::too_many_arguments)]
+pub fn pressure_response(
+    c: &Ctx,
+    dens: &DensityFields,
+    ef: &ElasticFields,
+    s: &NonPressureSettings,
+    constraints: &[VelocityConstraint],
+    dv: &mut [Vector3<f64>],
+    w: &mut CgWork,
+) -> CgStats {
+    let n = c.p.len();
+    let nf = c.p.n_fluid;
+    let op = Op::new(c, dens, ef, s);
+    for buf in [&mut w.r, &mut w.z, &mut w.p, &mut w.ap, &mut w.b] {
+        buf.resize(n, Vector3::zeros());
+    }
+    w.prl.resize(c.p.n_solid(), Matrix3::zeros());
+    // A fixed skeleton does not move: zero there (rhs and guess) eliminates its rows, so the
+    // water sees it as an immovable obstacle and the operator stays symmetric on the rest.
+    for a in nf..n {
+        if c.rest.fixed[a - nf] {
+            dv[a] = Vector3::zeros();
+        }
+    }
+    // A contact already meets its target velocity: its normal component stays put.
+    let normals = constraint_field(n, constraints);
+    filter(dv, &normals);
+    w.b.par_iter_mut().enumerate().for_each(|(a, b)| *b = c.p.mass[a] * dv[a]);
+    op.preconditioner(&mut w.minv);
+    // Water away from the skeleton has rows `m x = m dv`: starting from dv makes them exact.
+    pcg(&op, dv, &normals, s.tolerance, s.max_iterations, w)
 }
 
 /// Explicit accelerations outside the implicit solve: SPlisHSPlasH "standard" fluid viscosity

@@ -27,6 +27,8 @@ pub struct StepStats {
     pub pressure: PressureStats,
     /// Implicit non-pressure solve.
     pub cg: CgStats,
+    /// Drag response to the pressure impulse (zero iterations when off or without a skeleton).
+    pub drag: CgStats,
     /// Dynamic-dynamic neighbour pairs stored.
     pub neighbour_pairs: usize,
     /// Particle-body contacts resolved.
@@ -398,8 +400,8 @@ impl Simulation {
         let detected = contact::detect(&self.p, &self.nbb, &self.bnd, cfg.particle_radius, dt, &self.contact_active);
         let implicit = nonpressure::needed(&ctx, &nps);
         let mut contacts: Vec<Contact> = Vec::with_capacity(detected.len());
+        let cons: Vec<_> = detected.iter().map(|d| d.0).collect();
         let cg = if implicit {
-            let cons: Vec<_> = detected.iter().map(|d| d.0).collect();
             let (cg, impulses) = nonpressure::solve(
                 &ctx,
                 &self.dens,
@@ -447,6 +449,11 @@ impl Simulation {
             warm_start: cfg.pressure.warm_start,
             warm_start_factor: cfg.pressure.warm_start_factor,
         };
+        let v_pre = if cfg.pressure.drag_coupled && implicit && self.p.n_solid() > 0 && nf > 0 {
+            Some(v.clone())
+        } else {
+            None
+        };
         let (pstats, reactions) = pressure::solve(
             &ctx,
             &self.dens,
@@ -458,6 +465,16 @@ impl Simulation {
             &mut self.pwork,
             1 + self.objects.len(),
         );
+        let drag = match v_pre {
+            Some(v_pre) => {
+                let mut dv: Vec<Vector3<f64>> = v.iter().zip(&v_pre).map(|(a, b)| a - b).collect();
+                let st =
+                    nonpressure::pressure_response(&ctx, &self.dens, &self.ef, &nps, &cons, &mut dv, &mut self.cgwork);
+                v.iter_mut().zip(v_pre.iter().zip(&dv)).for_each(|(vi, (p, d))| *vi = p + d);
+                st
+            }
+            None => CgStats::default(),
+        };
         for (a, vi) in v.iter_mut().enumerate().skip(nf) {
             if fixed[a - nf] {
                 *vi = Vector3::zeros();
@@ -519,6 +536,7 @@ impl Simulation {
         self.stats = StepStats {
             pressure: pstats,
             cg,
+            drag,
             neighbour_pairs: self.nb.pairs(),
             contacts: contacts.len(),
             seconds: [

@@ -5,7 +5,7 @@
 //! external [`Action`]); [`run_trial`] runs the scripted trial to the end and returns the
 //! recorded trajectory and its outcome.
 
-use crate::config::{check_range, PorousMaterial, SimConfig};
+use crate::config::{check_range, PorousMaterial, PressureConfig, SimConfig};
 use crate::controller::{Action, ControlInput, Controller, ControllerParams, Failure, Phase, Transition};
 use crate::friction::{ContactMemory, FrictionParams};
 use crate::gate::{Gate, GateInput, GateParams};
@@ -48,6 +48,8 @@ pub struct TrialConfig {
     pub controller: ControllerParams,
     /// Lift gate.
     pub gate: GateParams,
+    /// Pressure solve (tolerance, iterations, drag coupling of the pressure impulse).
+    pub pressure: PressureConfig,
     /// Simulator steps per recorded row of [`run_trial`].
     pub record_every: u32,
 }
@@ -69,6 +71,7 @@ impl Default for TrialConfig {
             friction: FrictionParams::default(),
             controller: ControllerParams::default(),
             gate: GateParams::default(),
+            pressure: PressureConfig::default(),
             record_every: 5,
         }
     }
@@ -124,6 +127,7 @@ impl TrialConfig {
         cfg.dt = self.dt;
         cfg.scene.seed = self.seed;
         cfg.scene.jitter = self.jitter;
+        cfg.pressure = self.pressure.clone();
         let block = &mut cfg.scene.porous_blocks[0];
         block.material = PorousMaterial { porosity: self.porosity, ..self.material.clone() };
         block.saturated = self.saturated;

@@ -133,13 +133,16 @@ fn trial_is_deterministic_across_threads_and_saved_states() {
     // Into the ramp, with contacts and anchors.
     let mut a = Trial::new(c.clone(), Some(1)).unwrap();
     let mut b = Trial::new(c.clone(), Some(2)).unwrap();
-    for _ in 0..260 {
+    for k in 0..600 {
         let (x, y) = (a.step().unwrap().values(), b.step().unwrap().values());
         assert!(
             x.iter().zip(&y).all(|(p, q)| p.to_bits() == q.to_bits()),
             "1 vs 2 threads differ at t = {}",
             a.observation().time
         );
+        if k >= 260 && a.phase() >= Phase::Ramp && !a.memory().is_empty() {
+            break;
+        }
     }
     assert!(a.phase() >= Phase::Ramp && !a.memory().is_empty(), "phase {:?}", a.phase());
     let bytes = a.to_bytes();
