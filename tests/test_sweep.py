@@ -8,6 +8,7 @@ engine belongs next to the engine's trial runner.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import signal
@@ -262,29 +263,15 @@ def other_engine_make_config(*args: Any, **overrides: Any) -> dict[str, Any]:
 def test_resume_refuses_runs_of_another_engine_config(tmp_path: Path) -> None:
     out = tmp_path / "sweep"
     g = grid(hold_forces_N=[30], porosities=[0.5])
-    specs = expand_grid(g)
-    run_sweep(
-        specs,
-        out,
-        runner=fake_runner,
-        make_config=fake_make_config,
-        workers=0,
-        progress=False,
-        grid=g,
+    sweep = functools.partial(
+        run_sweep, expand_grid(g), out, runner=fake_runner, workers=0, progress=False, grid=g
     )
+    sweep(make_config=fake_make_config)
     before = {p: p.read_bytes() for p in (out / "runs").rglob("*.parquet")}
     with pytest.raises(
         ValueError, match=r"2 finished run\(s\).*material: <absent> -> \{'permeability': 3e-11\}"
     ):
-        run_sweep(
-            specs,
-            out,
-            runner=fake_runner,
-            make_config=other_engine_make_config,
-            workers=0,
-            progress=False,
-            grid=g,
-        )
+        sweep(make_config=other_engine_make_config)
     # Nothing was touched: the old runs stay as they were.
     assert {p: p.read_bytes() for p in (out / "runs").rglob("*.parquet")} == before
 

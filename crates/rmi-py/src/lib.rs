@@ -117,8 +117,8 @@ fn run_trial<'py>(
 /// **overrides
 ///     TrialConfig fields (``dt``, ``jitter``, ``record_every``, ``saturated``, and tables
 ///     ``material``, ``gripper``, ``friction``, ``gate``, ``controller``, ``pressure``,
-///     merged into the defaults) or ControllerParams fields (``settle_time``, ``ramp_time``, ``hold_time``,
-///     ``wait_time``, ...), which go under ``controller``.
+///     merged into the defaults) or ControllerParams fields (``settle_time``,
+///     ``ramp_time``, ``hold_time``, ``wait_time``, ...), which go under ``controller``.
 ///
 /// Raises
 /// ------

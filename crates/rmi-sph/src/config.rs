@@ -215,9 +215,10 @@ pub struct PressureConfig {
     pub warm_start: bool,
     /// Fraction of the previous pressure the warm start uses (the reference code uses 0.5).
     pub warm_start_factor: f64,
-    /// Pass the pressure impulse through the implicit water-skeleton drag within the step, so
-    /// that pore water seeps at the Darcy speed instead of moving as free water for one step.
-    /// `false` reproduces the reference code, which applies drag only before the pressure.
+    /// Pass the pressure impulse through the implicit operator of the non-pressure solve
+    /// (drag, adhesion, viscosity, elasticity) within the step, so that pore water seeps at
+    /// the Darcy speed instead of moving as free water for one step. `false` reproduces the
+    /// reference code, which applies those terms only before the pressure.
     pub drag_coupled: bool,
 }
 

@@ -51,12 +51,13 @@ pub struct CgWork {
     p: Vec<Vector3<f64>>,
     ap: Vec<Vector3<f64>>,
     b: Vec<Vector3<f64>>,
-    minv: Vec<Matrix3<f64>>,
     prl: Vec<Matrix3<f64>>,
 }
 
-/// Per-step quantities the operator reads.
-struct Op<'a> {
+/// The step's implicit system: the operator `A y = m y - dt F_lin(y)` at the current
+/// positions, the skeleton-body contact constraints it honours and its block-Jacobi
+/// preconditioner. Built once per step; [`solve`] and [`pressure_response`] share it.
+pub struct Op<'a> {
     c: &'a Ctx<'a>,
     dens: &'a DensityFields,
     ef: &'a ElasticFields,
@@ -68,6 +69,11 @@ struct Op<'a> {
     /// Per pair (aligned with the neighbour chunks): [Laplacian coefficient / (|x|^2 + eps),
     /// adhesion coefficient c_is]; the Laplacian one is viscosity (fluid-fluid) or drag.
     coef: Vec<Vec<[f64; 2]>>,
+    /// Contact constraints, and per particle the constrained normal (zero where free).
+    constraints: &'a [VelocityConstraint],
+    normals: Vec<Vector3<f64>>,
+    /// Inverted preconditioner blocks.
+    minv: Vec<Matrix3<f64>>,
 }
 
 impl<'a> Op<'a> {
@@ -96,8 +102,15 @@ impl<'a> Op<'a> {
             * w
     }
 
-    /// Operator for this step: current densities and the per-pair coefficient cache.
-    fn new(c: &'a Ctx<'a>, dens: &'a DensityFields, ef: &'a ElasticFields, s: &'a NonPressureSettings) -> Self {
+    /// The system of this step: current densities, the per-pair coefficient cache, the
+    /// constraint normals and the preconditioner.
+    pub fn new(
+        c: &'a Ctx<'a>,
+        dens: &'a DensityFields,
+        ef: &'a ElasticFields,
+        s: &'a NonPressureSettings,
+        constraints: &'a [VelocityConstraint],
+    ) -> Self {
         let nf = c.p.n_fluid;
         let rho = (0..c.p.len())
             .map(|a| dens.rho_ratio[a] * if a < nf { c.rho0_f } else { c.object(a).material.dry_density })
@@ -112,8 +125,12 @@ impl<'a> Op<'a> {
             eps_h: 0.01 * h * h,
             implicit_visc: s.viscosity_mode == ViscosityMode::Implicit && s.viscosity > 0.0,
             coef: Vec::new(),
+            constraints,
+            normals: constraint_field(c.p.len(), constraints),
+            minv: Vec::new(),
         };
         op.fill_coefficients();
+        op.minv = op.preconditioner();
         op
     }
 
@@ -249,11 +266,11 @@ impl<'a> Op<'a> {
     }
 
     /// Block-Jacobi preconditioner blocks (inverted).
-    fn preconditioner(&self, minv: &mut Vec<Matrix3<f64>>) {
+    fn preconditioner(&self) -> Vec<Matrix3<f64>> {
         let c = self.c;
         let nf = c.p.n_fluid;
         let dt = c.dt;
-        minv.resize(c.p.len(), Matrix3::identity());
+        let mut minv = vec![Matrix3::identity(); c.p.len()];
         minv.par_iter_mut().enumerate().for_each(|(a, mi)| {
             let m = c.p.mass[a];
             if self.s.preconditioner == Preconditioner::Identity || (a >= nf && c.rest.fixed[a - nf]) {
@@ -276,6 +293,7 @@ impl<'a> Op<'a> {
             }
             *mi = block.try_inverse().unwrap_or_else(|| Matrix3::identity() / m);
         });
+        minv
     }
 }
 
@@ -326,21 +344,17 @@ fn filter(x: &mut [Vector3<f64>], normals: &[Vector3<f64>]) {
 /// v* - v on exit. Returns the statistics and the normal impulse (N s) of each constraint.
 #[allow(clippy::too_many_arguments)]
 pub fn solve(
-    c: &Ctx,
-    dens: &DensityFields,
-    ef: &ElasticFields,
-    s: &NonPressureSettings,
+    op: &Op,
     kappa_prev: &[f64],
     gravity: &Vector3<f64>,
-    constraints: &[VelocityConstraint],
     v: &mut [Vector3<f64>],
     dv_prev: &mut [Vector3<f64>],
     w: &mut CgWork,
 ) -> (CgStats, Vec<f64>) {
+    let (c, ef, s, constraints) = (op.c, op.ef, op.s, op.constraints);
     let n = c.p.len();
     let nf = c.p.n_fluid;
-    let op = Op::new(c, dens, ef, s);
-    let sat = &dens.saturation;
+    let sat = &op.dens.saturation;
     for buf in [&mut w.r, &mut w.z, &mut w.p, &mut w.ap, &mut w.b] {
         buf.resize(n, Vector3::zeros());
     }
@@ -372,15 +386,13 @@ pub fn solve(
             *b = m * vv[a] + c.dt * f;
         });
     }
-    op.preconditioner(&mut w.minv);
-    let normals = constraint_field(n, constraints);
     // Initial guess: warm start, with constrained normal components set to their targets.
     let mut x: Vec<Vector3<f64>> = (0..n).map(|a| if s.warm_start { v[a] + dv_prev[a] } else { v[a] }).collect();
     for con in constraints {
         let xa = &mut x[con.particle as usize];
         *xa += con.normal * (con.target - con.normal.dot(xa));
     }
-    let stats = pcg(&op, &mut x, &normals, s.tolerance, s.max_iterations, w);
+    let stats = pcg(op, &mut x, w);
     // Constraint impulses: what the rows still lack, A x - b, along the normals.
     let impulses: Vec<f64> = if constraints.is_empty() {
         Vec::new()
@@ -398,16 +410,10 @@ pub fn solve(
     (stats, impulses)
 }
 
-/// Preconditioned CG on `A x = w.b` from the guess in `x`, with the rows' normal components
-/// along `normals` held fixed (empty: no constraints). `w.minv` must hold the preconditioner.
-fn pcg(
-    op: &Op,
-    x: &mut [Vector3<f64>],
-    normals: &[Vector3<f64>],
-    tolerance: f64,
-    max_iterations: u32,
-    w: &mut CgWork,
-) -> CgStats {
+/// Preconditioned CG on `A x = w.b` from the guess in `x`, with the constrained rows' normal
+/// components held fixed.
+fn pcg(op: &Op, x: &mut [Vector3<f64>], w: &mut CgWork) -> CgStats {
+    let (normals, tolerance, max_iterations) = (&op.normals, op.s.tolerance, op.s.max_iterations);
     let sat = &op.dens.saturation;
     op.apply(x, &mut w.ap, &mut w.prl, sat);
     w.r.par_iter_mut().enumerate().for_each(|(a, r)| *r = w.b[a] - w.ap[a]);
@@ -415,7 +421,7 @@ fn pcg(
     let mut bf = w.b.clone();
     filter(&mut bf, normals);
     let bnorm = dot(&bf, &bf).sqrt().max(1e-300);
-    let minv = &w.minv;
+    let minv = &op.minv;
     w.z.par_iter_mut().enumerate().for_each(|(a, z)| *z = minv[a] * w.r[a]);
     filter(&mut w.z, normals);
     w.p.copy_from_slice(&w.z);
@@ -444,46 +450,30 @@ fn pcg(
 }
 
 /// Implicit response of the coupled system to a velocity increment `dv` (m/s), such as the
-/// pressure solve's: solves `A x = m dv` with the operator of [`solve`] (viscosity, drag,
-/// adhesion, linearised elasticity) and the same contact constraints held, and writes x
-/// into `dv`. Because `A` is linear, the step's velocity v* + x equals the implicit solve
+/// pressure solve's: solves `A x = m dv` with the system of [`solve`] (viscosity, drag,
+/// adhesion, linearised elasticity, the same contact constraints held; `w` sized by
+/// [`solve`]), and writes x into `dv`. Because `A` is linear, the step's velocity v* + x equals the implicit solve
 /// with the pressure force on its right-hand side.
 ///
 /// The pressure solve moves water as if it were free; through a sponge's pores the drag
 /// takes most of that impulse within the same step and the skeleton's elasticity carries
 /// it, so that pore water seeps at the Darcy speed the pressure gradient drives. Every pair
 /// term is equal and opposite, so momentum is conserved.
-#[allow(clippy::too_many_arguments)]
-pub fn pressure_response(
-    c: &Ctx,
-    dens: &DensityFields,
-    ef: &ElasticFields,
-    s: &NonPressureSettings,
-    constraints: &[VelocityConstraint],
-    dv: &mut [Vector3<f64>],
-    w: &mut CgWork,
-) -> CgStats {
-    let n = c.p.len();
+pub fn pressure_response(op: &Op, dv: &mut [Vector3<f64>], w: &mut CgWork) -> CgStats {
+    let c = op.c;
     let nf = c.p.n_fluid;
-    let op = Op::new(c, dens, ef, s);
-    for buf in [&mut w.r, &mut w.z, &mut w.p, &mut w.ap, &mut w.b] {
-        buf.resize(n, Vector3::zeros());
-    }
-    w.prl.resize(c.p.n_solid(), Matrix3::zeros());
     // A fixed skeleton does not move: zero there (rhs and guess) eliminates its rows, so the
     // water sees it as an immovable obstacle and the operator stays symmetric on the rest.
-    for a in nf..n {
+    for a in nf..c.p.len() {
         if c.rest.fixed[a - nf] {
             dv[a] = Vector3::zeros();
         }
     }
     // A contact already meets its target velocity: its normal component stays put.
-    let normals = constraint_field(n, constraints);
-    filter(dv, &normals);
+    filter(dv, &op.normals);
     w.b.par_iter_mut().enumerate().for_each(|(a, b)| *b = c.p.mass[a] * dv[a]);
-    op.preconditioner(&mut w.minv);
     // Water away from the skeleton has rows `m x = m dv`: starting from dv makes them exact.
-    pcg(&op, dv, &normals, s.tolerance, s.max_iterations, w)
+    pcg(op, dv, w)
 }
 
 /// Explicit accelerations outside the implicit solve: SPlisHSPlasH "standard" fluid viscosity
@@ -561,7 +551,7 @@ pub fn coupling_forces(c: &Ctx, dens: &DensityFields, v: &[Vector3<f64>]) -> Vec
         warm_start: false,
     };
     let ef = ElasticFields::default();
-    let op = Op::new(c, dens, &ef, &s);
+    let op = Op::new(c, dens, &ef, &s, &[]);
     (0..c.p.len()).into_par_iter().map(|a| op.pair_forces(a, v) + op.adhesion_position_force(a)).collect()
 }
 

@@ -27,8 +27,9 @@ pub struct StepStats {
     pub pressure: PressureStats,
     /// Implicit non-pressure solve.
     pub cg: CgStats,
-    /// Drag response to the pressure impulse (zero iterations when off or without a skeleton).
-    pub drag: CgStats,
+    /// Implicit response to the pressure impulse (zero iterations when
+    /// `pressure.drag_coupled` is off or there is no skeleton).
+    pub pressure_response: CgStats,
     /// Dynamic-dynamic neighbour pairs stored.
     pub neighbour_pairs: usize,
     /// Particle-body contacts resolved.
@@ -401,19 +402,9 @@ impl Simulation {
         let implicit = nonpressure::needed(&ctx, &nps);
         let mut contacts: Vec<Contact> = Vec::with_capacity(detected.len());
         let cons: Vec<_> = detected.iter().map(|d| d.0).collect();
-        let cg = if implicit {
-            let (cg, impulses) = nonpressure::solve(
-                &ctx,
-                &self.dens,
-                &self.ef,
-                &nps,
-                &kappa_prev,
-                &g,
-                &cons,
-                &mut v,
-                &mut self.dv_prev,
-                &mut self.cgwork,
-            );
+        let system = implicit.then(|| nonpressure::Op::new(&ctx, &self.dens, &self.ef, &nps, &cons));
+        let cg = if let Some(op) = &system {
+            let (cg, impulses) = nonpressure::solve(op, &kappa_prev, &g, &mut v, &mut self.dv_prev, &mut self.cgwork);
             for ((con, body, point), j) in detected.iter().zip(impulses) {
                 contacts.push(Contact {
                     particle: con.particle,
@@ -449,11 +440,8 @@ impl Simulation {
             warm_start: cfg.pressure.warm_start,
             warm_start_factor: cfg.pressure.warm_start_factor,
         };
-        let v_pre = if cfg.pressure.drag_coupled && implicit && self.p.n_solid() > 0 && nf > 0 {
-            Some(v.clone())
-        } else {
-            None
-        };
+        let v_pre =
+            (cfg.pressure.drag_coupled && system.is_some() && self.p.n_solid() > 0 && nf > 0).then(|| v.clone());
         let (pstats, reactions) = pressure::solve(
             &ctx,
             &self.dens,
@@ -465,15 +453,14 @@ impl Simulation {
             &mut self.pwork,
             1 + self.objects.len(),
         );
-        let drag = match v_pre {
-            Some(v_pre) => {
+        let pressure_response = match (v_pre, &system) {
+            (Some(v_pre), Some(op)) => {
                 let mut dv: Vec<Vector3<f64>> = v.iter().zip(&v_pre).map(|(a, b)| a - b).collect();
-                let st =
-                    nonpressure::pressure_response(&ctx, &self.dens, &self.ef, &nps, &cons, &mut dv, &mut self.cgwork);
+                let st = nonpressure::pressure_response(op, &mut dv, &mut self.cgwork);
                 v.iter_mut().zip(v_pre.iter().zip(&dv)).for_each(|(vi, (p, d))| *vi = p + d);
                 st
             }
-            None => CgStats::default(),
+            _ => CgStats::default(),
         };
         for (a, vi) in v.iter_mut().enumerate().skip(nf) {
             if fixed[a - nf] {
@@ -536,7 +523,7 @@ impl Simulation {
         self.stats = StepStats {
             pressure: pstats,
             cg,
-            drag,
+            pressure_response,
             neighbour_pairs: self.nb.pairs(),
             contacts: contacts.len(),
             seconds: [

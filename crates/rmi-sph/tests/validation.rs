@@ -334,7 +334,7 @@ fn resting_sponge_floor_load_equals_weight() {
         // (the pressure impulse is drag-coupled), and a skeleton lighter than the water it
         // displaces ((1 - phi) rho_f = 400 > 100 kg/m^3) rests on the water film instead; it
         // must stay where it was put, not float up: lowest particle within half a spacing.
-        let d = 2.0 * 0.005;
+        let d = 2.0 * sim.radius();
         let nf = sim.particles().n_fluid;
         let lowest = sim.particles().x[nf..].iter().map(|x| x.z).fold(f64::INFINITY, f64::min);
         println!("  lowest skeleton particle at z = {lowest:.4} m (placed at {:.4} m)", d / 2.0);
