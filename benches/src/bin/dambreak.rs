@@ -22,7 +22,7 @@ fn main() {
     };
     let nf = sim.particles().n_fluid;
     let mut iters = 0u64;
-    let mut phase = [0.0f64; 5];
+    let mut phase = [0.0f64; 6];
     let mut err_sum = 0.0;
     let t0 = Instant::now();
     for i in 0..steps {
@@ -65,7 +65,8 @@ fn main() {
             "fields": 1e3 * phase[1] / steps as f64,
             "nonpressure": 1e3 * phase[2] / steps as f64,
             "pressure": 1e3 * phase[3] / steps as f64,
-            "other": 1e3 * phase[4] / steps as f64,
+            "pressure_response": 1e3 * phase[4] / steps as f64,
+            "other": 1e3 * phase[5] / steps as f64,
         },
         "engine_bytes_per_particle": sim.memory_bytes() as f64 / (nf + sim.boundary().x.len()) as f64,
         "peak_rss_bytes": peak_rss_bytes(),

@@ -3,10 +3,16 @@
 //!
 //! `trial [--size 10] [--porosity 0.6] [--hold 40] [--squeeze 80] [--radius 0.005]
 //!        [--seed 0] [--threads 2] [--every 50] [--dry] [--dry-density 100]`
+//!
+//! `trial --config FILE [--threads 2] --profile` runs the trial of a TrialConfig JSON file
+//! (e.g. `json.dumps(rmi_sph.trial_config(...))`) and prints, per controller phase, the
+//! steps, wall time per stage of the step and the mean solver iterations: where a trial's
+//! time goes.
 
 use rmi_benches::arg;
 use rmi_sph::presets::SPONGE_SIZES;
-use rmi_sph::trial::{run_trial_with, TrialConfig};
+use rmi_sph::trial::{run_trial_with, Trial, TrialConfig};
+use std::collections::BTreeMap;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -30,6 +36,14 @@ fn main() {
     cfg.material.adhesion = arg(&args, "--adhesion", cfg.material.adhesion);
     cfg.material.poisson_ratio = arg(&args, "--poisson", cfg.material.poisson_ratio);
     let threads: usize = arg(&args, "--threads", 2);
+    if let Some(path) = args.iter().position(|a| a == "--config").and_then(|i| args.get(i + 1)) {
+        let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{path}: {e}"));
+        cfg = TrialConfig::from_json(&text).unwrap_or_else(|e| panic!("{path}: {e}"));
+    }
+    if args.iter().any(|a| a == "--profile") {
+        profile(cfg, threads);
+        return;
+    }
     let every: usize = arg(&args, "--every", 50);
     let mut k = 0usize;
     println!(
@@ -63,5 +77,79 @@ fn main() {
             eprintln!("error: {e}");
             std::process::exit(1);
         }
+    }
+}
+
+/// Per-phase totals of one trial.
+#[derive(Default)]
+struct PhaseCost {
+    steps: usize,
+    wall: f64,
+    stages: [f64; 6],
+    pressure_iterations: u64,
+    cg_iterations: u64,
+    response_iterations: u64,
+}
+
+fn profile(cfg: TrialConfig, threads: usize) {
+    let mut trial = Trial::new(cfg, Some(threads)).unwrap_or_else(|e| panic!("{e}"));
+    let mut phases: BTreeMap<usize, (String, PhaseCost)> = BTreeMap::new();
+    let t_all = std::time::Instant::now();
+    let mut step = 0usize;
+    while !trial.finished() {
+        let name = trial.phase().name().to_string();
+        let t0 = std::time::Instant::now();
+        if let Err(e) = trial.step() {
+            eprintln!("error: {e}");
+            std::process::exit(1);
+        }
+        let wall = t0.elapsed().as_secs_f64();
+        let st = trial.simulation().stats();
+        let key = phases.values().position(|(n, _)| *n == name).unwrap_or(phases.len());
+        let entry = phases.entry(key).or_insert_with(|| (name, PhaseCost::default()));
+        let pc = &mut entry.1;
+        pc.steps += 1;
+        pc.wall += wall;
+        for (acc, s) in pc.stages.iter_mut().zip(st.seconds) {
+            *acc += s;
+        }
+        pc.pressure_iterations += u64::from(st.pressure.iterations);
+        pc.cg_iterations += u64::from(st.cg.iterations);
+        pc.response_iterations += u64::from(st.pressure_response.iterations);
+        step += 1;
+    }
+    let total = t_all.elapsed().as_secs_f64();
+    let n = trial.simulation().particles().len();
+    println!("{n} particles, {threads} threads, {step} steps, {total:.1} s wall");
+    println!(
+        "{:>8} {:>6} {:>7} {:>8} | {:>6} {:>6} {:>6} {:>6} {:>6} {:>6} | {:>6} {:>6} {:>6}",
+        "phase",
+        "steps",
+        "wall_s",
+        "ms/step",
+        "nb",
+        "fields",
+        "cg",
+        "press",
+        "resp",
+        "rest",
+        "p_it",
+        "cg_it",
+        "resp_it"
+    );
+    for (name, pc) in phases.values() {
+        let k = pc.steps.max(1) as f64;
+        let st: Vec<String> = pc.stages.iter().map(|s| format!("{:6.1}", 1e3 * s / k)).collect();
+        println!(
+            "{:>8} {:>6} {:>7.1} {:>8.1} | {} | {:>6.1} {:>6.1} {:>6.1}",
+            name,
+            pc.steps,
+            pc.wall,
+            1e3 * pc.wall / k,
+            st.join(" "),
+            pc.pressure_iterations as f64 / k,
+            pc.cg_iterations as f64 / k,
+            pc.response_iterations as f64 / k
+        );
     }
 }

@@ -19,6 +19,13 @@ pub struct ElasticFields {
     pub gsum: Vec<Vector3<f64>>,
     /// Full deformation gradient `sum_r V_r0 (x_r - x_s) (x) L_s grad W0_sr` (hourglass control).
     pub ftil: Vec<Matrix3<f64>>,
+    /// Per rest pair `dt V_r0 R_s L_s grad W0_sr` (s), the strain weight of the linearised
+    /// stress, cached because every CG pass needs it.
+    pub lin_g: Vec<Vector3<f64>>,
+    /// Per solid the saturation-adjusted (shear modulus, trace coefficient) (Pa).
+    pub moduli: Vec<(f64, f64)>,
+    /// Per solid `sum_r V_r0 grad W0_sr` (1/m), a rest quantity: the force sum factors through it.
+    pub grad0_sum: Vec<Vector3<f64>>,
 }
 
 /// Extracts the rotation of each skeleton particle (Müller et al. 2016), warm-started.
@@ -113,6 +120,32 @@ pub fn prepare(c: &Ctx, rot: &[UnitQuaternion<f64>], saturation: &[f64], out: &m
         out.gsum.push(g);
         out.ftil.push(f);
     }
+    let dt = c.dt;
+    out.lin_g.resize(rest.nbr.len(), Vector3::zeros());
+    // Pairs of solid s are contiguous (CSR): hand each solid its slice, gather-style.
+    let mut slices: Vec<&mut [Vector3<f64>]> = Vec::with_capacity(ns);
+    let mut tail: &mut [Vector3<f64>] = &mut out.lin_g;
+    for s in 0..ns {
+        let (head, rest_) = tail.split_at_mut((rest.start[s + 1] - rest.start[s]) as usize);
+        slices.push(head);
+        tail = rest_;
+    }
+    slices.into_par_iter().enumerate().for_each(|(s, out_s)| {
+        let lo = rest.start[s] as usize;
+        for (k, g) in out_s.iter_mut().enumerate() {
+            let e = lo + k;
+            *g = (dt * rest.v0[rest.nbr[e] as usize - nf]) * (rl[s] * rest.grad0[e]);
+        }
+    });
+    out.moduli = (0..ns).into_par_iter().map(|s| moduli(c, nf + s, saturation[nf + s])).collect();
+    out.grad0_sum = (0..ns)
+        .into_par_iter()
+        .map(|s| {
+            (rest.start[s] as usize..rest.start[s + 1] as usize)
+                .map(|e| rest.v0[rest.nbr[e] as usize - nf] * rest.grad0[e])
+                .fold(Vector3::zeros(), |acc, g| acc + g)
+        })
+        .collect();
 }
 
 /// Hourglass spring constants (N/m) per rest pair: `alpha E V_s0 V_r0 W0_sr / |x0_sr|^2`
@@ -174,31 +207,30 @@ pub fn hourglass_linear(c: &Ctx, s: usize, y: &[Vector3<f64>]) -> Vector3<f64> {
 }
 
 /// Linearised stress term P(eps(y)) R L for velocities `y`: eps = sym(dt sum V0 (y_r - y_s) (x) g).
-pub fn linear_prl(c: &Ctx, ef: &ElasticFields, saturation: &[f64], y: &[Vector3<f64>], out: &mut [Matrix3<f64>]) {
+pub fn linear_prl(c: &Ctx, ef: &ElasticFields, y: &[Vector3<f64>], out: &mut [Matrix3<f64>]) {
     let nf = c.p.n_fluid;
     let rest = c.rest;
-    let dt = c.dt;
     out.par_iter_mut().enumerate().for_each(|(s, prl)| {
-        let a = nf + s;
+        let ya = y[nf + s];
         let mut grad = Matrix3::zeros();
         for e in rest.start[s] as usize..rest.start[s + 1] as usize {
-            let r = rest.nbr[e] as usize;
-            grad += (dt * rest.v0[r - nf]) * (y[r] - y[a]) * (ef.rl[s] * rest.grad0[e]).transpose();
+            grad += (y[rest.nbr[e] as usize] - ya) * ef.lin_g[e].transpose();
         }
-        let (mu, lam) = moduli(c, a, saturation[a]);
+        let (mu, lam) = ef.moduli[s];
         *prl = stress(&grad, mu, lam, 0.0) * ef.rl[s];
     });
 }
 
-/// Elastic force on solid `s` from per-solid `prl` matrices: `V_s0 sum_r V_r0 (PRL_s + PRL_r) grad W0_sr`.
+/// Elastic force on solid `s` from per-solid `prl` matrices: `V_s0 sum_r V_r0 (PRL_s + PRL_r) grad W0_sr`,
+/// evaluated as `V_s0 (PRL_s sum_r V_r0 grad W0_sr + sum_r V_r0 PRL_r grad W0_sr)`.
 #[inline]
-pub fn force(c: &Ctx, s: usize, prl: &[Matrix3<f64>]) -> Vector3<f64> {
+pub fn force(c: &Ctx, ef: &ElasticFields, s: usize, prl: &[Matrix3<f64>]) -> Vector3<f64> {
     let nf = c.p.n_fluid;
     let rest = c.rest;
-    let mut f = Vector3::zeros();
+    let mut f = prl[s] * ef.grad0_sum[s];
     for e in rest.start[s] as usize..rest.start[s + 1] as usize {
         let r = rest.nbr[e] as usize - nf;
-        f += rest.v0[r] * ((prl[s] + prl[r]) * rest.grad0[e]);
+        f += rest.v0[r] * (prl[r] * rest.grad0[e]);
     }
     rest.v0[s] * f
 }

@@ -244,11 +244,11 @@ impl<'a> Op<'a> {
     }
 
     /// `A y = m y - dt F_lin(y)`.
-    fn apply(&self, y: &[Vector3<f64>], out: &mut [Vector3<f64>], prl: &mut [Matrix3<f64>], sat: &[f64]) {
+    fn apply(&self, y: &[Vector3<f64>], out: &mut [Vector3<f64>], prl: &mut [Matrix3<f64>]) {
         let c = self.c;
         let nf = c.p.n_fluid;
         if c.p.n_solid() > 0 {
-            elasticity::linear_prl(c, self.ef, sat, y, prl);
+            elasticity::linear_prl(c, self.ef, y, prl);
         }
         let prl: &[Matrix3<f64>] = prl;
         out.par_iter_mut().enumerate().for_each(|(a, o)| {
@@ -259,7 +259,7 @@ impl<'a> Op<'a> {
             }
             let mut f = self.pair_forces(a, y);
             if a >= nf {
-                f += elasticity::force(c, a - nf, prl) + elasticity::hourglass_linear(c, a - nf, y);
+                f += elasticity::force(c, self.ef, a - nf, prl) + elasticity::hourglass_linear(c, a - nf, y);
             }
             *o = m * y[a] - c.dt * f;
         });
@@ -354,7 +354,6 @@ pub fn solve(
     let (c, ef, s, constraints) = (op.c, op.ef, op.s, op.constraints);
     let n = c.p.len();
     let nf = c.p.n_fluid;
-    let sat = &op.dens.saturation;
     for buf in [&mut w.r, &mut w.z, &mut w.p, &mut w.ap, &mut w.b] {
         buf.resize(n, Vector3::zeros());
     }
@@ -381,7 +380,7 @@ pub fn solve(
                     // Buoyancy: reaction of the fluid-side skeleton pressure term (lagged).
                     f -= ((1.0 - phi) * c.vol * c.p.mass[i] * kappa_prev[i]) * nb.g[k];
                 }
-                f += elasticity::force(c, a - nf, &ef.prl) + elasticity::hourglass_force(c, ef, a - nf);
+                f += elasticity::force(c, ef, a - nf, &ef.prl) + elasticity::hourglass_force(c, ef, a - nf);
             }
             *b = m * vv[a] + c.dt * f;
         });
@@ -397,7 +396,7 @@ pub fn solve(
     let impulses: Vec<f64> = if constraints.is_empty() {
         Vec::new()
     } else {
-        op.apply(&x, &mut w.ap, &mut w.prl, sat);
+        op.apply(&x, &mut w.ap, &mut w.prl);
         constraints
             .iter()
             .map(|con| (w.ap[con.particle as usize] - w.b[con.particle as usize]).dot(&con.normal))
@@ -411,11 +410,10 @@ pub fn solve(
 }
 
 /// Preconditioned CG on `A x = w.b` from the guess in `x`, with the constrained rows' normal
-/// components held fixed.
+/// components held fixed; the tolerance is relative to the filtered right-hand side.
 fn pcg(op: &Op, x: &mut [Vector3<f64>], w: &mut CgWork) -> CgStats {
     let (normals, tolerance, max_iterations) = (&op.normals, op.s.tolerance, op.s.max_iterations);
-    let sat = &op.dens.saturation;
-    op.apply(x, &mut w.ap, &mut w.prl, sat);
+    op.apply(x, &mut w.ap, &mut w.prl);
     w.r.par_iter_mut().enumerate().for_each(|(a, r)| *r = w.b[a] - w.ap[a]);
     filter(&mut w.r, normals);
     let mut bf = w.b.clone();
@@ -428,7 +426,7 @@ fn pcg(op: &Op, x: &mut [Vector3<f64>], w: &mut CgWork) -> CgStats {
     let mut rz = dot(&w.r, &w.z);
     let mut stats = CgStats { iterations: 0, residual: dot(&w.r, &w.r).sqrt() / bnorm };
     while stats.residual > tolerance && stats.iterations < max_iterations {
-        op.apply(&w.p, &mut w.ap, &mut w.prl, sat);
+        op.apply(&w.p, &mut w.ap, &mut w.prl);
         filter(&mut w.ap, normals);
         let pap = dot(&w.p, &w.ap);
         if pap <= 0.0 || !pap.is_finite() {
@@ -452,14 +450,20 @@ fn pcg(op: &Op, x: &mut [Vector3<f64>], w: &mut CgWork) -> CgStats {
 /// Implicit response of the coupled system to a velocity increment `dv` (m/s), such as the
 /// pressure solve's: solves `A x = m dv` with the system of [`solve`] (viscosity, drag,
 /// adhesion, linearised elasticity, the same contact constraints held; `w` sized by
-/// [`solve`]), and writes x into `dv`. Because `A` is linear, the step's velocity v* + x equals the implicit solve
+/// [`solve`]), and writes x into `dv`. `correction_prev` holds the previous response's
+/// x - dv, the warm start (m/s), and is updated on exit. Because `A` is linear, the step's velocity v* + x equals the implicit solve
 /// with the pressure force on its right-hand side.
 ///
 /// The pressure solve moves water as if it were free; through a sponge's pores the drag
 /// takes most of that impulse within the same step and the skeleton's elasticity carries
 /// it, so that pore water seeps at the Darcy speed the pressure gradient drives. Every pair
 /// term is equal and opposite, so momentum is conserved.
-pub fn pressure_response(op: &Op, dv: &mut [Vector3<f64>], w: &mut CgWork) -> CgStats {
+pub fn pressure_response(
+    op: &Op,
+    dv: &mut [Vector3<f64>],
+    correction_prev: &mut [Vector3<f64>],
+    w: &mut CgWork,
+) -> CgStats {
     let c = op.c;
     let nf = c.p.n_fluid;
     // A fixed skeleton does not move: zero there (rhs and guess) eliminates its rows, so the
@@ -472,8 +476,22 @@ pub fn pressure_response(op: &Op, dv: &mut [Vector3<f64>], w: &mut CgWork) -> Cg
     // A contact already meets its target velocity: its normal component stays put.
     filter(dv, &op.normals);
     w.b.par_iter_mut().enumerate().for_each(|(a, b)| *b = c.p.mass[a] * dv[a]);
-    // Water away from the skeleton has rows `m x = m dv`: starting from dv makes them exact.
-    pcg(op, dv, w)
+    // Warm start: the drag takes back about the same share of the pressure impulse from step
+    // to step, so the last step's correction x - dv is a close guess; water away from the
+    // skeleton (rows `m x = m dv`) has none.
+    let dv_in: Vec<Vector3<f64>> = dv.to_vec();
+    if op.s.warm_start {
+        dv.par_iter_mut().zip(correction_prev.par_iter()).for_each(|(x, k)| *x += k);
+        for a in nf..c.p.len() {
+            if c.rest.fixed[a - nf] {
+                dv[a] = Vector3::zeros();
+            }
+        }
+        filter(dv, &op.normals);
+    }
+    let stats = pcg(op, dv, w);
+    correction_prev.par_iter_mut().zip(dv.par_iter().zip(dv_in.par_iter())).for_each(|(k, (x, d))| *k = x - d);
+    stats
 }
 
 /// Explicit accelerations outside the implicit solve: SPlisHSPlasH "standard" fluid viscosity

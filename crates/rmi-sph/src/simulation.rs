@@ -34,8 +34,9 @@ pub struct StepStats {
     pub neighbour_pairs: usize,
     /// Particle-body contacts resolved.
     pub contacts: usize,
-    /// Wall-clock seconds per phase: neighbours, fields, implicit solve, pressure, rest.
-    pub seconds: [f64; 5],
+    /// Wall-clock seconds per phase: neighbours, fields, implicit solve, pressure solve,
+    /// pressure response, rest.
+    pub seconds: [f64; 6],
 }
 
 /// A porous-flow SPH simulation. All quantities SI; z is up by convention of the presets.
@@ -57,6 +58,8 @@ pub struct Simulation {
     pub(crate) kappa: Vec<f64>,
     pub(crate) kappa_dt2: Vec<f64>,
     pub(crate) dv_prev: Vec<Vector3<f64>>,
+    /// Drag correction of the last pressure response (m/s; its warm start).
+    pub(crate) response_prev: Vec<Vector3<f64>>,
     acc: Vec<Vector3<f64>>,
     rho0: Vec<f64>,
     pwork: PressureWork,
@@ -116,6 +119,7 @@ impl Simulation {
             kappa: vec![0.0; n],
             kappa_dt2: vec![0.0; n],
             dv_prev: vec![Vector3::zeros(); n],
+            response_prev: vec![Vector3::zeros(); n],
             acc: vec![Vector3::zeros(); n],
             pwork: PressureWork::default(),
             cgwork: CgWork::default(),
@@ -290,6 +294,7 @@ impl Simulation {
         apply(&mut self.p.id, &perm);
         apply(&mut self.kappa_dt2, &perm);
         apply(&mut self.dv_prev, &perm);
+        apply(&mut self.response_prev, &perm);
         // Fields of the last step, so that accessors stay aligned with the particles.
         for f in [
             &mut self.kappa,
@@ -453,10 +458,11 @@ impl Simulation {
             &mut self.pwork,
             1 + self.objects.len(),
         );
+        let t3p = Instant::now();
         let pressure_response = match (v_pre, &system) {
             (Some(v_pre), Some(op)) => {
                 let mut dv: Vec<Vector3<f64>> = v.iter().zip(&v_pre).map(|(a, b)| a - b).collect();
-                let st = nonpressure::pressure_response(op, &mut dv, &mut self.cgwork);
+                let st = nonpressure::pressure_response(op, &mut dv, &mut self.response_prev, &mut self.cgwork);
                 v.iter_mut().zip(v_pre.iter().zip(&dv)).for_each(|(vi, (p, d))| *vi = p + d);
                 st
             }
@@ -530,7 +536,8 @@ impl Simulation {
                 (t1 - t0).as_secs_f64(),
                 (t2 - t1).as_secs_f64(),
                 (t3 - t2).as_secs_f64(),
-                (t4 - t3).as_secs_f64(),
+                (t3p - t3).as_secs_f64(),
+                (t4 - t3p).as_secs_f64(),
                 (t5 - t4).as_secs_f64(),
             ],
         };
@@ -564,6 +571,7 @@ impl Simulation {
             solid: self.solid.clone(),
             kappa_dt2: self.kappa_dt2.clone(),
             dv_prev: self.dv_prev.clone(),
+            response_prev: self.response_prev.clone(),
             contact_active: self.contact_active.clone(),
             bodies: self.bnd.bodies.iter().map(|b| b.state.clone()).collect(),
         }
@@ -590,6 +598,7 @@ impl Simulation {
         fresh.solid = s.solid;
         fresh.kappa_dt2 = s.kappa_dt2;
         fresh.dv_prev = s.dv_prev;
+        fresh.response_prev = s.response_prev;
         fresh.contact_active = s.contact_active;
         fresh.kappa = vec![0.0; n];
         fresh.acc = vec![Vector3::zeros(); n];

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use std::io::Write;
 
 /// Format version written into every snapshot.
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 const MAGIC: &[u8; 8] = b"RMISNAP\0";
 
 /// Serializable simulation state. Derived data (neighbours, rest matrices) is recomputed.
@@ -35,6 +35,8 @@ pub struct Snapshot {
     pub kappa_dt2: Vec<f64>,
     /// Velocity change of the last implicit solve (warm start).
     pub dv_prev: Vec<Vector3<f64>>,
+    /// Drag correction of the last pressure response (warm start).
+    pub response_prev: Vec<Vector3<f64>>,
     /// Skeleton contacts that pushed in the last step.
     pub contact_active: Vec<bool>,
     /// Body poses and velocities.
@@ -58,6 +60,7 @@ impl Snapshot {
             ("id", p.id.len()),
             ("kappa_dt2", self.kappa_dt2.len()),
             ("dv_prev", self.dv_prev.len()),
+            ("response_prev", self.response_prev.len()),
         ] {
             if len != n {
                 return Err(RmiError::State(format!("array `{name}` has {len} entries, expected {n}")));
@@ -76,7 +79,14 @@ impl Snapshot {
             }
         }
         let finite = |v: &Vector3<f64>| v.iter().all(|c| c.is_finite());
-        if !p.x.iter().chain(&p.v).chain(&self.dv_prev).chain(&self.rest_positions).all(finite)
+        if !p
+            .x
+            .iter()
+            .chain(&p.v)
+            .chain(&self.dv_prev)
+            .chain(&self.response_prev)
+            .chain(&self.rest_positions)
+            .all(finite)
             || !self.kappa_dt2.iter().all(|k| k.is_finite())
             || !self.time.is_finite()
         {
