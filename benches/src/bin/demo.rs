@@ -57,7 +57,7 @@ fn main() {
     let report = (steps / 6).max(1);
     let t0 = Instant::now();
     let mut last = Instant::now();
-    let (mut piters, mut cgiters) = (0u64, 0u64);
+    let (mut piters, mut cgiters, mut respiters) = (0u64, 0u64, 0u64);
     // The instantaneous floor load alternates from step to step (relaxed Jacobi with a half
     // warm start); the table shows its mean over each reporting interval.
     let mut floor_sum = 0.0;
@@ -68,6 +68,7 @@ fn main() {
         }
         piters += sim.stats().pressure.iterations as u64;
         cgiters += sim.stats().cg.iterations as u64;
+        respiters += sim.stats().pressure_response.iterations as u64;
         floor_sum -= sim.boundary().bodies[0].force.z;
         if i % report == 0 || i == steps {
             let ms = 1e3 * last.elapsed().as_secs_f64() / report as f64;
@@ -88,7 +89,7 @@ fn main() {
     let wall = t0.elapsed().as_secs_f64();
     let sat: Vec<f64> = sim.fields().saturation[nf..].to_vec();
     let mean_sat = sat.iter().sum::<f64>() / sat.len().max(1) as f64;
-    println!("summary: {steps} steps in {wall:.1} s ({:.1} ms/step, {:.3} simulated s per wall s), mean iterations: pressure {:.1}, CG {:.1}", 1e3 * wall / steps as f64, seconds / wall, piters as f64 / steps as f64, cgiters as f64 / steps as f64);
+    println!("summary: {steps} steps in {wall:.1} s ({:.1} ms/step, {:.3} simulated s per wall s), mean iterations: pressure {:.1}, CG {:.1}, pressure-response CG {:.1}", 1e3 * wall / steps as f64, seconds / wall, piters as f64 / steps as f64, cgiters as f64 / steps as f64, respiters as f64 / steps as f64);
     println!(
         "water held: {:.1} g of {:.1} g; mean skeleton saturation {:.3}",
         1e3 * water_mass(&sim),
