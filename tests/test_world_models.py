@@ -125,10 +125,11 @@ def test_transformer_prefix_and_final_norms() -> None:
     assert torch.allclose(full["z"][:, :8], short["z"], atol=1e-5)
 
 
-def test_transformer_scores_chunks_against_one_shared_history() -> None:
+@pytest.mark.parametrize("kind", ["transformer", "ac-gru", "state-gru"])
+def test_chunks_are_scored_against_one_shared_history(kind: str) -> None:
     """B histories with B * M chunks give what the histories repeated per chunk give."""
     torch.manual_seed(0)
-    model: Any = build({"kind": "transformer"}).eval()
+    model: Any = build({"kind": kind}).eval()
     assert model.shares_history
     hist, mask, actions = random_inputs()
     b, m = 2, 3

@@ -19,7 +19,7 @@ pub struct ElasticFields {
     pub gsum: Vec<Vector3<f64>>,
     /// Full deformation gradient `sum_r V_r0 (x_r - x_s) (x) L_s grad W0_sr` (hourglass control).
     pub ftil: Vec<Matrix3<f64>>,
-    /// Per rest pair `dt V_r0 R_s L_s grad W0_sr` (s), the strain weight of the linearised
+    /// Per rest pair `dt V_r0 R_s L_s grad W0_sr` (s/m), the strain weight of the linearised
     /// stress, cached because every CG pass needs it.
     pub lin_g: Vec<Vector3<f64>>,
     /// Per solid the saturation-adjusted (shear modulus, trace coefficient) (Pa).

@@ -32,6 +32,8 @@ class GRUWorldModel(WorldModel):
     """Recurrent world model; ``action_conditioned=False`` gives State-GRU-WM."""
 
     recurrent = True
+    # Chunks scored for one history share its encoding: the encoder runs once per history.
+    shares_history = True
 
     def __init__(
         self,
@@ -84,12 +86,15 @@ class GRUWorldModel(WorldModel):
         ``target_mask``, ``target_c``, ``target_r`` used with probability ``tf_prob``."""
         h_len = self.check_horizon(actions)
         hist, hist_mask = self.prepare(hist, hist_mask)
-        n = hist.shape[0]
+        n, b = actions.shape[0], hist.shape[0]
+        if n % b:
+            raise ValueError(f"{n} action chunks do not split evenly over {b} histories")
+        rep = n // b
         keep = self.obs_keep
         _, h_enc = self.encoder(torch.cat([hist, hist_mask], dim=-1))
-        h = list(h_enc.unbind(0))
-        y, m = hist[:, -1], hist_mask[:, -1]
-        z = last_z(hist)
+        h = list(h_enc.repeat_interleave(rep, dim=1).unbind(0))
+        y, m = hist[:, -1].repeat_interleave(rep, 0), hist_mask[:, -1].repeat_interleave(rep, 0)
+        z = last_z(hist).repeat_interleave(rep, 0)
         e = self.E_u(actions) if self.action_conditioned else None
         ones = keep.expand(n, -1)
         use_tf = teacher is not None and tf_prob > 0.0 and self.training
