@@ -12,7 +12,6 @@
 use rmi_benches::arg;
 use rmi_sph::presets::SPONGE_SIZES;
 use rmi_sph::trial::{run_trial_with, Trial, TrialConfig};
-use std::collections::BTreeMap;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -93,7 +92,8 @@ struct PhaseCost {
 
 fn profile(cfg: TrialConfig, threads: usize) {
     let mut trial = Trial::new(cfg, Some(threads)).unwrap_or_else(|e| panic!("{e}"));
-    let mut phases: BTreeMap<usize, (String, PhaseCost)> = BTreeMap::new();
+    // Phases in the order the trial reaches them.
+    let mut phases: Vec<(String, PhaseCost)> = Vec::new();
     let t_all = std::time::Instant::now();
     let mut step = 0usize;
     while !trial.finished() {
@@ -105,9 +105,11 @@ fn profile(cfg: TrialConfig, threads: usize) {
         }
         let wall = t0.elapsed().as_secs_f64();
         let st = trial.simulation().stats();
-        let key = phases.values().position(|(n, _)| *n == name).unwrap_or(phases.len());
-        let entry = phases.entry(key).or_insert_with(|| (name, PhaseCost::default()));
-        let pc = &mut entry.1;
+        let i = phases.iter().position(|(n, _)| *n == name).unwrap_or_else(|| {
+            phases.push((name, PhaseCost::default()));
+            phases.len() - 1
+        });
+        let pc = &mut phases[i].1;
         pc.steps += 1;
         pc.wall += wall;
         for (acc, s) in pc.stages.iter_mut().zip(st.seconds) {
@@ -137,7 +139,7 @@ fn profile(cfg: TrialConfig, threads: usize) {
         "cg_it",
         "resp_it"
     );
-    for (name, pc) in phases.values() {
+    for (name, pc) in &phases {
         let k = pc.steps.max(1) as f64;
         let st: Vec<String> = pc.stages.iter().map(|s| format!("{:6.1}", 1e3 * s / k)).collect();
         println!(

@@ -24,8 +24,6 @@ pub struct ElasticFields {
     pub lin_g: Vec<Vector3<f64>>,
     /// Per solid the saturation-adjusted (shear modulus, trace coefficient) (Pa).
     pub moduli: Vec<(f64, f64)>,
-    /// Per solid `sum_r V_r0 grad W0_sr` (1/m), a rest quantity: the force sum factors through it.
-    pub grad0_sum: Vec<Vector3<f64>>,
 }
 
 /// Extracts the rotation of each skeleton particle (Müller et al. 2016), warm-started.
@@ -89,7 +87,9 @@ pub fn prepare(c: &Ctx, rot: &[UnitQuaternion<f64>], saturation: &[f64], out: &m
     out.rl.resize(ns, Matrix3::zeros());
     out.rl.par_iter_mut().enumerate().for_each(|(s, rl)| *rl = rot[s].to_rotation_matrix().matrix() * rest.l[s]);
     let rl = &out.rl;
-    let rows: Vec<(Matrix3<f64>, Vector3<f64>, Matrix3<f64>)> = (0..ns)
+    // Per solid: P R L, G_s, F~ and the moduli.
+    type Row = (Matrix3<f64>, Vector3<f64>, Matrix3<f64>, (f64, f64));
+    let rows: Vec<Row> = (0..ns)
         .into_par_iter()
         .map(|s| {
             let a = nf + s;
@@ -109,41 +109,25 @@ pub fn prepare(c: &Ctx, rot: &[UnitQuaternion<f64>], saturation: &[f64], out: &m
             let (mu, lam) = moduli(c, a, sat);
             let o = c.object(a);
             let bloat = o.lambda * o.material.bloating * sat;
-            (stress(&grad, mu, lam, bloat) * rl[s], gsum, ftil)
+            (stress(&grad, mu, lam, bloat) * rl[s], gsum, ftil, (mu, lam))
         })
         .collect();
     out.prl.clear();
     out.gsum.clear();
     out.ftil.clear();
-    for (p, g, f) in rows {
+    out.moduli.clear();
+    for (p, g, f, m) in rows {
         out.prl.push(p);
         out.gsum.push(g);
         out.ftil.push(f);
+        out.moduli.push(m);
     }
     let dt = c.dt;
-    out.lin_g.resize(rest.nbr.len(), Vector3::zeros());
-    // Pairs of solid s are contiguous (CSR): hand each solid its slice, gather-style.
-    let mut slices: Vec<&mut [Vector3<f64>]> = Vec::with_capacity(ns);
-    let mut tail: &mut [Vector3<f64>] = &mut out.lin_g;
-    for s in 0..ns {
-        let (head, rest_) = tail.split_at_mut((rest.start[s + 1] - rest.start[s]) as usize);
-        slices.push(head);
-        tail = rest_;
-    }
-    slices.into_par_iter().enumerate().for_each(|(s, out_s)| {
-        let lo = rest.start[s] as usize;
-        for (k, g) in out_s.iter_mut().enumerate() {
-            let e = lo + k;
-            *g = (dt * rest.v0[rest.nbr[e] as usize - nf]) * (rl[s] * rest.grad0[e]);
-        }
-    });
-    out.moduli = (0..ns).into_par_iter().map(|s| moduli(c, nf + s, saturation[nf + s])).collect();
-    out.grad0_sum = (0..ns)
+    out.lin_g = (0..ns)
         .into_par_iter()
-        .map(|s| {
+        .flat_map_iter(|s| {
             (rest.start[s] as usize..rest.start[s + 1] as usize)
-                .map(|e| rest.v0[rest.nbr[e] as usize - nf] * rest.grad0[e])
-                .fold(Vector3::zeros(), |acc, g| acc + g)
+                .map(move |e| (dt * rest.v0[rest.nbr[e] as usize - nf]) * (rl[s] * rest.grad0[e]))
         })
         .collect();
 }
@@ -224,10 +208,10 @@ pub fn linear_prl(c: &Ctx, ef: &ElasticFields, y: &[Vector3<f64>], out: &mut [Ma
 /// Elastic force on solid `s` from per-solid `prl` matrices: `V_s0 sum_r V_r0 (PRL_s + PRL_r) grad W0_sr`,
 /// evaluated as `V_s0 (PRL_s sum_r V_r0 grad W0_sr + sum_r V_r0 PRL_r grad W0_sr)`.
 #[inline]
-pub fn force(c: &Ctx, ef: &ElasticFields, s: usize, prl: &[Matrix3<f64>]) -> Vector3<f64> {
+pub fn force(c: &Ctx, s: usize, prl: &[Matrix3<f64>]) -> Vector3<f64> {
     let nf = c.p.n_fluid;
     let rest = c.rest;
-    let mut f = prl[s] * ef.grad0_sum[s];
+    let mut f = prl[s] * rest.grad0_sum[s];
     for e in rest.start[s] as usize..rest.start[s + 1] as usize {
         let r = rest.nbr[e] as usize - nf;
         f += rest.v0[r] * (prl[r] * rest.grad0[e]);
@@ -236,17 +220,16 @@ pub fn force(c: &Ctx, ef: &ElasticFields, s: usize, prl: &[Matrix3<f64>]) -> Vec
 }
 
 /// Exact 3x3 diagonal block (w.r.t. y_s) of `-dt * F_lin`, divided by dt^2.
-pub fn diagonal_block(c: &Ctx, ef: &ElasticFields, saturation: &[f64], s: usize) -> Matrix3<f64> {
+pub fn diagonal_block(c: &Ctx, ef: &ElasticFields, s: usize) -> Matrix3<f64> {
     let nf = c.p.n_fluid;
     let rest = c.rest;
-    let a = nf + s;
     let vs = rest.v0[s];
-    let (mu, lam) = moduli(c, a, saturation[a]);
+    let (mu, lam) = ef.moduli[s];
     let g = ef.gsum[s];
     let mut d = vs * (mu * g.norm_squared() * Matrix3::identity() + (mu + lam) * g * g.transpose());
     for e in rest.start[s] as usize..rest.start[s + 1] as usize {
         let r = rest.nbr[e] as usize;
-        let (mur, lamr) = moduli(c, r, saturation[r]);
+        let (mur, lamr) = ef.moduli[r - nf];
         // Neighbour r's strain sees y_s through g_rs = R_r L_r grad W(x_r0 - x_s0) = -R_r L_r grad0_sr.
         let grs = -(ef.rl[r - nf] * rest.grad0[e]);
         d += vs

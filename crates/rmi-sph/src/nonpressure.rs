@@ -259,7 +259,7 @@ impl<'a> Op<'a> {
             }
             let mut f = self.pair_forces(a, y);
             if a >= nf {
-                f += elasticity::force(c, self.ef, a - nf, prl) + elasticity::hourglass_linear(c, a - nf, y);
+                f += elasticity::force(c, a - nf, prl) + elasticity::hourglass_linear(c, a - nf, y);
             }
             *o = m * y[a] - c.dt * f;
         });
@@ -289,7 +289,7 @@ impl<'a> Op<'a> {
             }
             let mut block = Matrix3::from_diagonal_element(m) - dt * jac;
             if a >= nf {
-                block += dt * dt * elasticity::diagonal_block(c, self.ef, &self.dens.saturation, a - nf);
+                block += dt * dt * elasticity::diagonal_block(c, self.ef, a - nf);
             }
             *mi = block.try_inverse().unwrap_or_else(|| Matrix3::identity() / m);
         });
@@ -380,7 +380,7 @@ pub fn solve(
                     // Buoyancy: reaction of the fluid-side skeleton pressure term (lagged).
                     f -= ((1.0 - phi) * c.vol * c.p.mass[i] * kappa_prev[i]) * nb.g[k];
                 }
-                f += elasticity::force(c, ef, a - nf, &ef.prl) + elasticity::hourglass_force(c, ef, a - nf);
+                f += elasticity::force(c, a - nf, &ef.prl) + elasticity::hourglass_force(c, ef, a - nf);
             }
             *b = m * vv[a] + c.dt * f;
         });
@@ -468,13 +468,16 @@ pub fn pressure_response(
     let nf = c.p.n_fluid;
     // A fixed skeleton does not move: zero there (rhs and guess) eliminates its rows, so the
     // water sees it as an immovable obstacle and the operator stays symmetric on the rest.
-    for a in nf..c.p.len() {
-        if c.rest.fixed[a - nf] {
-            dv[a] = Vector3::zeros();
-        }
-    }
     // A contact already meets its target velocity: its normal component stays put.
-    filter(dv, &op.normals);
+    let hold = |x: &mut [Vector3<f64>]| {
+        for a in nf..c.p.len() {
+            if c.rest.fixed[a - nf] {
+                x[a] = Vector3::zeros();
+            }
+        }
+        filter(x, &op.normals);
+    };
+    hold(dv);
     w.b.par_iter_mut().enumerate().for_each(|(a, b)| *b = c.p.mass[a] * dv[a]);
     // Warm start: the drag takes back about the same share of the pressure impulse from step
     // to step, so the last step's correction x - dv is a close guess; water away from the
@@ -482,12 +485,7 @@ pub fn pressure_response(
     let dv_in: Vec<Vector3<f64>> = dv.to_vec();
     if op.s.warm_start {
         dv.par_iter_mut().zip(correction_prev.par_iter()).for_each(|(x, k)| *x += k);
-        for a in nf..c.p.len() {
-            if c.rest.fixed[a - nf] {
-                dv[a] = Vector3::zeros();
-            }
-        }
-        filter(dv, &op.normals);
+        hold(dv);
     }
     let stats = pcg(op, dv, w);
     correction_prev.par_iter_mut().zip(dv.par_iter().zip(dv_in.par_iter())).for_each(|(k, (x, d))| *k = x - d);

@@ -67,6 +67,8 @@ pub struct SolidRest {
     pub nbr: Vec<u32>,
     /// `grad W(x_s0 - x_r0)` per rest pair.
     pub grad0: Vec<Vector3<f64>>,
+    /// Per solid `sum_r V_r0 grad W(x_s0 - x_r0)` (1/m): the elastic force sum factors through it.
+    pub grad0_sum: Vec<Vector3<f64>>,
     /// Pinned particles (never integrated).
     pub fixed: Vec<bool>,
     /// Hourglass spring constant (N/m) per rest pair, constant over a run.

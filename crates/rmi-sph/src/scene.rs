@@ -185,6 +185,13 @@ pub fn rest_data(p: &Particles, fixed: &[bool], kernel: &CubicKernel) -> SolidRe
     // the deformation gradient stays exact for affine motion whatever volume is used.
     rest.v0 = vec![d3; shepard_w.len()];
     rest.shepard0 = shepard_w.iter().map(|&s| s * d3).collect();
+    rest.grad0_sum = (0..xs.len())
+        .map(|s| {
+            (rest.start[s] as usize..rest.start[s + 1] as usize)
+                .map(|e| rest.v0[rest.nbr[e] as usize - nf] * rest.grad0[e])
+                .fold(Vector3::zeros(), |acc, g| acc + g)
+        })
+        .collect();
     rest.l = (0..xs.len())
         .map(|s| {
             let mut a = Matrix3::zeros();
