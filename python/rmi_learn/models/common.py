@@ -77,7 +77,7 @@ GROUP_SETS: dict[str, tuple[str, ...]] = {
 }
 
 # Position of each OBS entry in cat([z (18), c (1), r (4)]).
-_ASSEMBLE = torch.tensor(
+ASSEMBLE_INDEX = torch.tensor(
     [
         CONTINUOUS_INDEX.index(j)
         if j in CONTINUOUS_INDEX
@@ -99,7 +99,7 @@ def assemble_obs(z: torch.Tensor, c: torch.Tensor, r: torch.Tensor) -> torch.Ten
     """Build (..., 23) observations in OBS order from z (..., 18), contact (...,) and friction
     probabilities or one-hot (..., 4)."""
     cat = torch.cat([z, c.unsqueeze(-1), r], dim=-1)
-    return cat.index_select(-1, _ASSEMBLE.to(cat.device))
+    return cat.index_select(-1, ASSEMBLE_INDEX.to(cat.device))
 
 
 def last_z(hist: torch.Tensor) -> torch.Tensor:
