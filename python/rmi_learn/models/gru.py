@@ -11,7 +11,7 @@ marked valid, or, with teacher forcing, the ground truth with its mask.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple, cast
 
 import torch
 import torch.nn.functional as F
@@ -27,6 +27,18 @@ from rmi_learn.models.common import (
     assemble_obs,
     last_z,
 )
+
+
+class _PackedDecoder(NamedTuple):
+    """Decoder weights regrouped for the inference rollout (all transposed, K x N)."""
+
+    w_q: torch.Tensor  # fed-back [z, contact, friction] -> layer-0 input gates
+    b_ih: torch.Tensor
+    b_rest: torch.Tensor  # b_ih plus the constant mask term of steps after the first
+    w_first: torch.Tensor  # [y, m] of the last observation -> layer-0 input gates
+    w_e: torch.Tensor  # E_u(u) -> layer-0 input gates
+    w_out: list[torch.Tensor]  # new state of layer i -> [layer i+1 input (or head) | own gh]
+    b_out: list[torch.Tensor]
 
 
 class GRUWorldModel(WorldModel):
@@ -136,15 +148,18 @@ class GRUWorldModel(WorldModel):
             "friction_logit": torch.stack(fs, 1),
         }
 
-    def _packed(self) -> dict[str, Any]:
+    def _cells(self) -> list[nn.GRUCell]:
+        return [cast(nn.GRUCell, c) for c in self.decoder]
+
+    def _packed(self) -> _PackedDecoder:
         """The decoder's weights regrouped for :meth:`_rollout`, rebuilt only when a
         parameter changed (optimiser steps and ``load_state_dict`` bump ``_version``)."""
         key = tuple((p.data_ptr(), p._version) for p in self.parameters())
-        cached = getattr(self, "_packed_cache", None)
+        cached: tuple[Any, _PackedDecoder] | None = getattr(self, "_packed_cache", None)
         if cached is not None and cached[0] == key:
             return cached[1]
         keep = self.obs_keep
-        cells = list(self.decoder)
+        cells = self._cells()
         c0 = cells[0]
         w_y = c0.weight_ih[:, :N_OBS]
         w_m = c0.weight_ih[:, N_OBS : 2 * N_OBS]
@@ -157,15 +172,15 @@ class GRUWorldModel(WorldModel):
             above_b = above.bias_ih if above is not None else self.head.bias
             w_out.append(torch.cat([above_w, cell.weight_hh], 0).t().contiguous())
             b_out.append(torch.cat([above_b, cell.bias_hh]))
-        packed = {
-            "w_q": w_q.t().contiguous(),
-            "b_ih": c0.bias_ih.clone(),
-            "b_rest": torch.addmv(c0.bias_ih, w_m, keep),
-            "w_first": c0.weight_ih[:, : 2 * N_OBS].t().contiguous(),
-            "w_e": c0.weight_ih[:, 2 * N_OBS :].t().contiguous(),
-            "w_out": w_out,
-            "b_out": b_out,
-        }
+        packed = _PackedDecoder(
+            w_q=w_q.t().contiguous(),
+            b_ih=c0.bias_ih.clone(),
+            b_rest=torch.addmv(c0.bias_ih, w_m, keep),
+            w_first=c0.weight_ih[:, : 2 * N_OBS].t().contiguous(),
+            w_e=c0.weight_ih[:, 2 * N_OBS :].t().contiguous(),
+            w_out=w_out,
+            b_out=b_out,
+        )
         self._packed_cache = (key, packed)
         return packed
 
@@ -195,31 +210,34 @@ class GRUWorldModel(WorldModel):
         y0 = hist[:, -1].repeat_interleave(rep, 0)
         m0 = hist_mask[:, -1].repeat_interleave(rep, 0)
         z = last_z(hist).repeat_interleave(rep, 0)
-        gi_first = torch.addmm(pk["b_ih"], torch.cat([y0, m0], -1), pk["w_first"])
+        gi_first = torch.addmm(pk.b_ih, torch.cat([y0, m0], -1), pk.w_first)
         if self.action_conditioned:
-            ge = self.E_u(actions) @ pk["w_e"]
+            ge = self.E_u(actions) @ pk.w_e
             gi_first = gi_first + ge[:, 0]
-            gi_rest = ge + pk["b_rest"]
+            gi_rest = ge + pk.b_rest
         else:
-            gi_rest = pk["b_rest"].expand(n, h_len, -1)
-        w_out, b_out, w_qt = pk["w_out"], pk["b_out"], pk["w_q"]
-        cells = list(self.decoder)
+            gi_rest = pk.b_rest.expand(n, h_len, -1)
+        w_out, b_out, w_qt = pk.w_out, pk.b_out, pk.w_q
+        cells = self._cells()
         # Every intermediate lives in a buffer allocated once, read through views made once:
         # the loop issues only arithmetic (about 20 small kernels per step).
         n_head = N_Z + 1 + N_FRIC
-        like = {"device": z.device, "dtype": z.dtype}
-        prod = [torch.empty(n, w.shape[1], **like) for w in w_out]
+
+        def empty(*shape: int) -> torch.Tensor:
+            return torch.empty(*shape, device=z.device, dtype=z.dtype)
+
+        prod = [empty(n, w.shape[1]) for w in w_out]
         gh = [pr[:, pr.shape[1] - 3 * hd :] for pr in prod]
         for c, hi, g in zip(cells, h, gh, strict=True):
             torch.addmm(c.bias_hh, hi, c.weight_hh.t(), out=g)
         h = [hi.contiguous() for hi in h]
-        gi0 = torch.empty(n, 3 * hd, **like)
-        gates = torch.empty(n, 2 * hd, **like)
-        cand, diff = torch.empty(n, hd, **like), torch.empty(n, hd, **like)
+        gi0 = empty(n, 3 * hd)
+        gates = empty(n, 2 * hd)
+        cand, diff = empty(n, hd), empty(n, hd)
         r, u = gates[:, :hd], gates[:, hd:]
-        heads = torch.empty(h_len, n, n_head, **like)
-        zs = torch.empty(h_len, n, N_Z, **like)
-        q = torch.empty(n, N_OBS, **like)
+        heads = empty(h_len, n, n_head)
+        zs = empty(h_len, n, N_Z)
+        q = empty(n, N_OBS)
         q_c, q_f = q[:, N_Z : N_Z + 1], q[:, N_Z + 1 :]
         head = prod[-1][:, :n_head]
         dz, c_logit, f_logit = head[:, :N_Z], head[:, N_Z : N_Z + 1], head[:, N_Z + 1 :]
