@@ -7,6 +7,9 @@ change of the standardised continuous state, accumulated from z_t; separate head
 contact and friction logits. The first step's input is the latest observation and its mask;
 later inputs are the model's own predictions (contact probability, friction probabilities)
 marked valid, or, with teacher forcing, the ground truth with its mask.
+
+Without autograd (planning, evaluation) the same equations run through ``_rollout``, which
+regroups the products for speed; the differentiable loop in ``forward`` is the reference.
 """
 
 from __future__ import annotations
