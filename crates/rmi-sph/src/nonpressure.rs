@@ -505,6 +505,12 @@ pub fn explicit_accelerations(
     let h = c.kernel.support();
     let eps_h = 0.01 * h * h;
     let explicit_visc = s.viscosity_mode == ViscosityMode::Explicit;
+    // Fluid volumes once per particle instead of once per pair (same expression, same bits).
+    let vol: Vec<f64> = if explicit_visc {
+        (0..nf).into_par_iter().map(|b| c.p.mass[b] / (dens.rho_ratio[b] * c.rho0_f)).collect()
+    } else {
+        Vec::new()
+    };
     acc.par_iter_mut().enumerate().for_each(|(a, acc)| {
         let nb = c.nb.of(a);
         let xa = c.p.x[a];
@@ -517,8 +523,7 @@ pub fn explicit_accelerations(
             for k in 0..nb.n_fluid {
                 let b = nb.j[k] as usize;
                 let xab = xa - c.p.x[b];
-                let vol_b = c.p.mass[b] / (dens.rho_ratio[b] * c.rho0_f);
-                sum += (vol_b * (va - v[b]).dot(&xab) / (xab.norm_squared() + eps_h)) * nb.g[k];
+                sum += (vol[b] * (va - v[b]).dot(&xab) / (xab.norm_squared() + eps_h)) * nb.g[k];
             }
             let mut bsum = Vector3::zeros();
             if s.boundary_viscosity > 0.0 {
