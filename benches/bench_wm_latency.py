@@ -45,18 +45,15 @@ def main() -> None:
     import torch
 
     from rmi_learn.models import build, load
+    from rmi_learn.wm_eval import latency_inputs
 
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     models: list[tuple[str, Any]] = [(r, load(r)[0]) for r in args.runs]
     if not args.runs:
         models = [(k, build({"kind": k}).eval()) for k in args.kinds.split(",") if k]
-    hist, mask = torch.randn(1, 16, 23), torch.ones(1, 16, 23)
     for name, model in models:
-        h = getattr(model, "fixed_horizon", None) or 32
-        n_hist = 1 if getattr(model, "shares_history", False) else 8
-        hi, ma = hist.expand(n_hist, -1, -1), mask.expand(n_hist, -1, -1)
-        actions = torch.randn(8, h, 2)
+        hi, ma, actions = latency_inputs(model)
         # An empty teacher dict selects the GRUs' differentiable loop (no forcing at tf 0).
         paths: dict[str, dict[str, Any]] = {"inference": {}}
         if getattr(model, "recurrent", False):

@@ -135,6 +135,22 @@ def evaluate_rollouts(
     return acc.result()
 
 
+def latency_inputs(
+    model: torch.nn.Module, n_chunks: int = 8, horizon: int = 32, history: int = 16
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Random ``(hist, hist_mask, actions)`` for timing ``n_chunks`` chunks against one
+    history: the history once for models that share it across chunks (``shares_history``),
+    repeated per chunk for the others; lookahead models get their fixed horizon."""
+    fixed = getattr(model, "fixed_horizon", None)
+    h = fixed if fixed is not None else horizon
+    n_hist = 1 if getattr(model, "shares_history", False) else n_chunks
+    return (
+        torch.randn(n_hist, history, 23),
+        torch.ones(n_hist, history, 23),
+        torch.randn(n_chunks, h, 2),
+    )
+
+
 @torch.no_grad()
 def benchmark_latency(
     model: torch.nn.Module,
@@ -148,12 +164,7 @@ def benchmark_latency(
     share one history encoding across chunks (``shares_history``) get the history once, as
     the planner passes it; the others get it repeated per chunk."""
     model.eval()
-    fixed = getattr(model, "fixed_horizon", None)
-    h = fixed if fixed is not None else horizon
-    n_hist = 1 if getattr(model, "shares_history", False) else n_chunks
-    hist = torch.randn(n_hist, history, 23)
-    mask = torch.ones(n_hist, history, 23)
-    actions = torch.randn(n_chunks, h, 2)
+    hist, mask, actions = latency_inputs(model, n_chunks, horizon, history)
     for _ in range(5):
         model(hist, mask, actions)
     times = []

@@ -109,10 +109,10 @@ class GRUWorldModel(WorldModel):
         keep = self.obs_keep
         _, h_enc = self.encoder(torch.cat([hist, hist_mask], dim=-1))
         h = list(h_enc.repeat_interleave(rep, dim=1).unbind(0))
-        if teacher is None and not torch.is_grad_enabled():
-            return self._rollout(hist, hist_mask, actions, h, rep)
         y, m = hist[:, -1].repeat_interleave(rep, 0), hist_mask[:, -1].repeat_interleave(rep, 0)
         z = last_z(hist).repeat_interleave(rep, 0)
+        if teacher is None and not torch.is_grad_enabled():
+            return self._rollout(actions, h, y, m, z)
         e = self.E_u(actions) if self.action_conditioned else None
         ones = keep.expand(n, -1)
         use_tf = teacher is not None and tf_prob > 0.0 and self.training
@@ -155,9 +155,12 @@ class GRUWorldModel(WorldModel):
         return [cast(nn.GRUCell, c) for c in self.decoder]
 
     def _packed(self) -> _PackedDecoder:
-        """The decoder's weights regrouped for :meth:`_rollout`, rebuilt only when a
-        parameter changed (optimiser steps and ``load_state_dict`` bump ``_version``)."""
-        key = tuple((p.data_ptr(), p._version) for p in self.parameters())
+        """The decoder's and head's weights regrouped for :meth:`_rollout`, rebuilt only when
+        one of them changed (optimiser steps and ``load_state_dict`` bump ``_version``)."""
+        key = tuple(
+            (p.data_ptr(), p._version)
+            for p in (*self.decoder.parameters(), *self.head.parameters())
+        )
         cached: tuple[Any, _PackedDecoder] | None = getattr(self, "_packed_cache", None)
         if cached is not None and cached[0] == key:
             return cached[1]
@@ -177,7 +180,7 @@ class GRUWorldModel(WorldModel):
             b_out.append(torch.cat([above_b, cell.bias_hh]))
         packed = _PackedDecoder(
             w_q=w_q.t().contiguous(),
-            b_ih=c0.bias_ih.clone(),
+            b_ih=c0.bias_ih,
             b_rest=torch.addmv(c0.bias_ih, w_m, keep),
             w_first=c0.weight_ih[:, : 2 * N_OBS].t().contiguous(),
             w_e=c0.weight_ih[:, 2 * N_OBS :].t().contiguous(),
@@ -189,11 +192,11 @@ class GRUWorldModel(WorldModel):
 
     def _rollout(
         self,
-        hist: torch.Tensor,
-        hist_mask: torch.Tensor,
         actions: torch.Tensor,
         h: list[torch.Tensor],
-        rep: int,
+        y0: torch.Tensor,
+        m0: torch.Tensor,
+        z: torch.Tensor,
     ) -> dict[str, torch.Tensor]:
         """Free rollout without autograd, the same equations as the loop in ``forward``
         regrouped so that each decoder step costs three matrix products instead of five
@@ -206,13 +209,13 @@ class GRUWorldModel(WorldModel):
         - each new hidden state is multiplied once by [next layer's input weights | its own
           recurrent weights] (the last layer: [head | recurrent]), so the recurrent gates of
           step tau+1 come out of step tau's product.
+
+        ``h`` is the encoder state per layer and ``y0``, ``m0``, ``z`` the last observation,
+        its mask and its continuous state, all already repeated per chunk by ``forward``.
         """
         hd = self.hidden
         n, h_len = actions.shape[:2]
         pk = self._packed()
-        y0 = hist[:, -1].repeat_interleave(rep, 0)
-        m0 = hist_mask[:, -1].repeat_interleave(rep, 0)
-        z = last_z(hist).repeat_interleave(rep, 0)
         gi_first = torch.addmm(pk.b_ih, torch.cat([y0, m0], -1), pk.w_first)
         if self.action_conditioned:
             ge = self.E_u(actions) @ pk.w_e
