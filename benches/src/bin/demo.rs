@@ -61,6 +61,7 @@ fn main() {
     // The instantaneous floor load alternates from step to step (relaxed Jacobi with a half
     // warm start); the table shows its mean over each reporting interval.
     let mut floor_sum = 0.0;
+    let mut phase = [0.0f64; 6];
     for i in 1..=steps {
         if let Err(e) = sim.step() {
             eprintln!("error: {e}");
@@ -69,6 +70,9 @@ fn main() {
         piters += sim.stats().pressure.iterations as u64;
         cgiters += sim.stats().cg.iterations as u64;
         respiters += sim.stats().pressure_response.iterations as u64;
+        for (acc, sec) in phase.iter_mut().zip(sim.stats().seconds) {
+            *acc += sec;
+        }
         floor_sum -= sim.boundary().bodies[0].force.z;
         if i % report == 0 || i == steps {
             let ms = 1e3 * last.elapsed().as_secs_f64() / report as f64;
@@ -90,6 +94,16 @@ fn main() {
     let sat: Vec<f64> = sim.fields().saturation[nf..].to_vec();
     let mean_sat = sat.iter().sum::<f64>() / sat.len().max(1) as f64;
     println!("summary: {steps} steps in {wall:.1} s ({:.1} ms/step, {:.3} simulated s per wall s), mean iterations: pressure {:.1}, CG {:.1}, pressure-response CG {:.1}", 1e3 * wall / steps as f64, seconds / wall, piters as f64 / steps as f64, cgiters as f64 / steps as f64, respiters as f64 / steps as f64);
+    let ms = |k: usize| 1e3 * phase[k] / steps as f64;
+    println!(
+        "phases (ms/step): neighbours {:.1}, fields {:.1}, implicit solve {:.1}, pressure {:.1}, pressure response {:.1}, other {:.1}",
+        ms(0),
+        ms(1),
+        ms(2),
+        ms(3),
+        ms(4),
+        ms(5)
+    );
     println!(
         "water held: {:.1} g of {:.1} g; mean skeleton saturation {:.3}",
         1e3 * water_mass(&sim),

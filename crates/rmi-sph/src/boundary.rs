@@ -181,6 +181,7 @@ impl Boundary {
         if !self.grid_valid {
             let (lo, hi) = bounds(&self.x, h);
             self.grid.build(&self.x, lo, hi, h);
+            self.grid.mark_near();
             self.grid_valid = true;
         }
     }

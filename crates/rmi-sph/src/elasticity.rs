@@ -177,7 +177,7 @@ pub fn hourglass_force(c: &Ctx, ef: &ElasticFields, s: usize) -> Vector3<f64> {
 }
 
 /// Linear (velocity) part of the hourglass force for velocities `y`.
-#[inline]
+#[inline(always)]
 pub fn hourglass_linear(c: &Ctx, s: usize, y: &[Vector3<f64>]) -> Vector3<f64> {
     let nf = c.p.n_fluid;
     let rest = c.rest;
@@ -194,20 +194,24 @@ pub fn hourglass_linear(c: &Ctx, s: usize, y: &[Vector3<f64>]) -> Vector3<f64> {
 pub fn linear_prl(c: &Ctx, ef: &ElasticFields, y: &[Vector3<f64>], out: &mut [Matrix3<f64>]) {
     let nf = c.p.n_fluid;
     let rest = c.rest;
-    out.par_iter_mut().enumerate().for_each(|(s, prl)| {
-        let ya = y[nf + s];
-        let mut grad = Matrix3::zeros();
-        for e in rest.start[s] as usize..rest.start[s + 1] as usize {
-            grad += (y[rest.nbr[e] as usize] - ya) * ef.lin_g[e].transpose();
-        }
-        let (mu, lam) = ef.moduli[s];
-        *prl = stress(&grad, mu, lam, 0.0) * ef.rl[s];
-    });
+    crate::par::for_each_hot(
+        out,
+        #[inline(always)]
+        |s, prl| {
+            let ya = y[nf + s];
+            let mut grad = Matrix3::zeros();
+            for e in rest.start[s] as usize..rest.start[s + 1] as usize {
+                grad += (y[rest.nbr[e] as usize] - ya) * ef.lin_g[e].transpose();
+            }
+            let (mu, lam) = ef.moduli[s];
+            *prl = stress(&grad, mu, lam, 0.0) * ef.rl[s];
+        },
+    );
 }
 
 /// Elastic force on solid `s` from per-solid `prl` matrices: `V_s0 sum_r V_r0 (PRL_s + PRL_r) grad W0_sr`,
 /// evaluated as `V_s0 (PRL_s sum_r V_r0 grad W0_sr + sum_r V_r0 PRL_r grad W0_sr)`.
-#[inline]
+#[inline(always)]
 pub fn force(c: &Ctx, s: usize, prl: &[Matrix3<f64>]) -> Vector3<f64> {
     let nf = c.p.n_fluid;
     let rest = c.rest;

@@ -20,6 +20,10 @@ pub struct Grid {
     /// Position of each sorted point.
     pub sorted_x: Vec<Vector3<f64>>,
     cell_of: Vec<u32>,
+    /// Per cell, whether a query there has any candidate (empty: not computed, scan always).
+    /// Worth it for sparse, rarely rebuilt point sets such as the walls, where most water
+    /// particles would otherwise scan nine empty runs.
+    near: Vec<bool>,
 }
 
 /// Cap on cells per point so that a few far-flung particles cannot blow up memory.
@@ -44,6 +48,7 @@ impl Grid {
         while cells(cell) > budget {
             cell *= 1.25;
         }
+        self.near.clear();
         self.origin = lo;
         self.inv_cell = 1.0 / cell;
         for k in 0..3 {
@@ -76,6 +81,33 @@ impl Grid {
         }
     }
 
+    /// Computes the per-cell "has candidates" flags that let [`Grid::for_each_run`] skip
+    /// queries with nothing around them; valid until the next build.
+    pub fn mark_near(&mut self) {
+        let [nx, ny, nz] = self.dims;
+        let k = self.reach;
+        self.near.clear();
+        self.near.resize(nx * ny * nz, false);
+        for z in 0..nz {
+            for y in 0..ny {
+                for x in 0..nx {
+                    let c = x + nx * (y + ny * z);
+                    if self.cell_start[c] == self.cell_start[c + 1] {
+                        continue;
+                    }
+                    for zz in z.saturating_sub(k)..=(z + k).min(nz - 1) {
+                        for yy in y.saturating_sub(k)..=(y + k).min(ny - 1) {
+                            let row = nx * (yy + ny * zz);
+                            for xx in x.saturating_sub(k)..=(x + k).min(nx - 1) {
+                                self.near[row + xx] = true;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     #[inline]
     fn coord(&self, p: &Vector3<f64>) -> [usize; 3] {
         let mut c = [0usize; 3];
@@ -104,12 +136,17 @@ impl Grid {
     }
 
     /// Calls `f(lo, hi)` for the 9 contiguous sorted-slot runs covering the 27 cells around `p`.
-    #[inline]
+    // Always inlined: the caller's loop body lives in `f`, and must end up in the caller's
+    // (possibly AVX2-dispatched, see `cpu.rs`) code.
+    #[inline(always)]
     pub fn for_each_run(&self, p: &Vector3<f64>, mut f: impl FnMut(usize, usize)) {
         if self.sorted_idx.is_empty() {
             return;
         }
         let c = self.coord(p);
+        if !self.near.is_empty() && !self.near[c[0] + self.dims[0] * (c[1] + self.dims[1] * c[2])] {
+            return;
+        }
         let k = self.reach;
         let x0 = c[0].saturating_sub(k);
         let x1 = (c[0] + k).min(self.dims[0] - 1);
@@ -171,5 +208,40 @@ mod tests {
             let brute: Vec<usize> = (0..pts.len()).filter(|&j| (pts[j] - p).norm() < h).collect();
             assert_eq!(found, brute, "point {i}");
         }
+    }
+
+    #[test]
+    fn near_flags_skip_only_empty_neighbourhoods() {
+        // Sparse points on two faces of a box (like walls), dense queries everywhere.
+        let mut pts = Vec::new();
+        for i in 0..40 {
+            for j in 0..40 {
+                pts.push(Vector3::new(i as f64 * 0.025, j as f64 * 0.025, 0.0));
+                pts.push(Vector3::new(0.0, i as f64 * 0.025, j as f64 * 0.025));
+            }
+        }
+        let h = 0.07;
+        let (lo, hi) = bounds(&pts, h);
+        let mut g = Grid::default();
+        g.build(&pts, lo, hi, h);
+        g.mark_near();
+        let mut skipped = 0;
+        for q in 0..3000 {
+            let f = |k: u64| ((q * 7919 + k * 104729) % 1000) as f64 / 1000.0 - 0.1;
+            let p = Vector3::new(f(1), f(2), f(3));
+            let mut found = Vec::new();
+            g.for_each_candidate(&p, |slot| {
+                if (g.sorted_x[slot] - p).norm() < h {
+                    found.push(g.sorted_idx[slot] as usize);
+                }
+            });
+            found.sort();
+            let brute: Vec<usize> = (0..pts.len()).filter(|&j| (pts[j] - p).norm() < h).collect();
+            assert_eq!(found, brute, "query {p:?}");
+            let mut any = false;
+            g.for_each_run(&p, |_, _| any = true);
+            skipped += usize::from(!any);
+        }
+        assert!(skipped > 1000, "the flags should skip most interior queries, skipped {skipped}");
     }
 }

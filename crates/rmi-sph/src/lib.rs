@@ -13,7 +13,9 @@
 //! - porosity-aware relaxed-Jacobi pressure solve with per-material tolerances;
 //! - compressible skeleton, static and kinematic rigid bodies with force read-back;
 //! - validated configs, divergence guard, bit-identical snapshots, thread-count-independent
-//!   determinism (each [`Simulation`] owns its rayon pool).
+//!   determinism (each [`Simulation`] owns its rayon pool);
+//! - hot loops compiled twice, for baseline x86-64 and for AVX2 + FMA, chosen at run time
+//!   with the same bits either way ([`cpu`]).
 //!
 //! ```no_run
 //! use rmi_sph::{presets, Simulation};
@@ -30,6 +32,7 @@ pub mod boundary;
 pub mod config;
 pub mod contact;
 pub mod controller;
+pub mod cpu;
 pub mod ctx;
 pub mod density;
 pub mod elasticity;

@@ -113,46 +113,55 @@ impl NeighbourLists {
         self.chunks.truncate(nchunks);
         let h2 = kernel.support() * kernel.support();
         self.chunks.par_iter_mut().enumerate().for_each(|(ci, ch)| {
-            ch.start.clear();
-            ch.split.clear();
-            ch.j.clear();
-            ch.w.clear();
-            ch.g.clear();
-            let mut solid: Vec<(u32, f64, Vector3<f64>)> = Vec::with_capacity(64);
-            let lo = ci * CHUNK;
-            let hi = (lo + CHUNK).min(queries.len());
-            for a in lo..hi {
-                let xa = queries[a];
-                ch.start.push(ch.j.len() as u32);
-                solid.clear();
-                grid.for_each_run(&xa, |lo, hi| {
-                    let xs = &grid.sorted_x[lo..hi];
-                    let ids = &grid.sorted_idx[lo..hi];
-                    for (xb, &b) in xs.iter().zip(ids) {
-                        let d = xa - xb;
-                        let r2 = d.norm_squared();
-                        if r2 >= h2 || (exclude_self && b as usize == a) {
-                            continue;
-                        }
-                        let (w, gf) = kernel.w_and_grad_factor(r2.sqrt());
-                        let g = d * gf;
-                        if (b as usize) < n_fluid_targets {
+            crate::cpu::hot(
+                #[inline(always)]
+                || {
+                    ch.start.clear();
+                    ch.split.clear();
+                    ch.j.clear();
+                    ch.w.clear();
+                    ch.g.clear();
+                    let mut solid: Vec<(u32, f64, Vector3<f64>)> = Vec::with_capacity(64);
+                    let lo = ci * CHUNK;
+                    let hi = (lo + CHUNK).min(queries.len());
+                    for a in lo..hi {
+                        let xa = queries[a];
+                        ch.start.push(ch.j.len() as u32);
+                        solid.clear();
+                        grid.for_each_run(
+                            &xa,
+                            #[inline(always)]
+                            |lo, hi| {
+                                let xs = &grid.sorted_x[lo..hi];
+                                let ids = &grid.sorted_idx[lo..hi];
+                                for (xb, &b) in xs.iter().zip(ids) {
+                                    let d = xa - xb;
+                                    let r2 = d.norm_squared();
+                                    if r2 >= h2 || (exclude_self && b as usize == a) {
+                                        continue;
+                                    }
+                                    let (w, gf) = kernel.w_and_grad_factor(r2.sqrt());
+                                    let g = d * gf;
+                                    if (b as usize) < n_fluid_targets {
+                                        ch.j.push(b);
+                                        ch.w.push(w);
+                                        ch.g.push(g);
+                                    } else {
+                                        solid.push((b, w, g));
+                                    }
+                                }
+                            },
+                        );
+                        ch.split.push(ch.j.len() as u32);
+                        for &(b, w, g) in &solid {
                             ch.j.push(b);
                             ch.w.push(w);
                             ch.g.push(g);
-                        } else {
-                            solid.push((b, w, g));
                         }
                     }
-                });
-                ch.split.push(ch.j.len() as u32);
-                for &(b, w, g) in &solid {
-                    ch.j.push(b);
-                    ch.w.push(w);
-                    ch.g.push(g);
-                }
-            }
-            ch.start.push(ch.j.len() as u32);
+                    ch.start.push(ch.j.len() as u32);
+                },
+            )
         });
     }
 }

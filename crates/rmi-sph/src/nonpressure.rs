@@ -202,6 +202,7 @@ impl<'a> Op<'a> {
     }
 
     /// `F_lin(y)` at particle a (without elasticity, which needs the PRL pass).
+    #[inline(always)]
     fn pair_forces(&self, a: usize, y: &[Vector3<f64>]) -> Vector3<f64> {
         let c = self.c;
         let nb = c.nb.of(a);
@@ -251,18 +252,22 @@ impl<'a> Op<'a> {
             elasticity::linear_prl(c, self.ef, y, prl);
         }
         let prl: &[Matrix3<f64>] = prl;
-        out.par_iter_mut().enumerate().for_each(|(a, o)| {
-            let m = c.p.mass[a];
-            if a >= nf && c.rest.fixed[a - nf] {
-                *o = m * y[a];
-                return;
-            }
-            let mut f = self.pair_forces(a, y);
-            if a >= nf {
-                f += elasticity::force(c, a - nf, prl) + elasticity::hourglass_linear(c, a - nf, y);
-            }
-            *o = m * y[a] - c.dt * f;
-        });
+        crate::par::for_each_hot(
+            out,
+            #[inline(always)]
+            |a, o| {
+                let m = c.p.mass[a];
+                if a >= nf && c.rest.fixed[a - nf] {
+                    *o = m * y[a];
+                    return;
+                }
+                let mut f = self.pair_forces(a, y);
+                if a >= nf {
+                    f += elasticity::force(c, a - nf, prl) + elasticity::hourglass_linear(c, a - nf, y);
+                }
+                *o = m * y[a] - c.dt * f;
+            },
+        );
     }
 
     /// Block-Jacobi preconditioner blocks (inverted).
@@ -511,50 +516,54 @@ pub fn explicit_accelerations(
     } else {
         Vec::new()
     };
-    acc.par_iter_mut().enumerate().for_each(|(a, acc)| {
-        let nb = c.nb.of(a);
-        let xa = c.p.x[a];
-        let va = v[a];
-        if a < nf {
-            if !explicit_visc {
-                return;
-            }
-            let mut sum = Vector3::zeros();
-            for k in 0..nb.n_fluid {
-                let b = nb.j[k] as usize;
-                let xab = xa - c.p.x[b];
-                sum += (vol[b] * (va - v[b]).dot(&xab) / (xab.norm_squared() + eps_h)) * nb.g[k];
-            }
-            let mut bsum = Vector3::zeros();
-            if s.boundary_viscosity > 0.0 {
-                let nbb = c.nbb.of(a);
-                for k in 0..nbb.j.len() {
-                    let kk = nbb.j[k] as usize;
-                    let xak = xa - c.bnd.x[kk];
-                    bsum += (c.bnd.volume[kk] / dens.rho_ratio[a] * (va - c.bnd.v[kk]).dot(&xak)
-                        / (xak.norm_squared() + eps_h))
-                        * nbb.g[k];
+    crate::par::for_each_hot(
+        acc,
+        #[inline(always)]
+        |a, acc| {
+            let nb = c.nb.of(a);
+            let xa = c.p.x[a];
+            let va = v[a];
+            if a < nf {
+                if !explicit_visc {
+                    return;
                 }
-            }
-            *acc += LAPLACE_D * (s.viscosity * sum + s.boundary_viscosity * bsum);
-        } else {
-            let o = c.object(a);
-            let nu = o.material.damping;
-            if nu == 0.0 || c.rest.fixed[a - nf] {
-                return;
-            }
-            let mut sum = Vector3::zeros();
-            for k in nb.n_fluid..nb.j.len() {
-                let b = nb.j[k] as usize;
-                if c.p.material[b] != c.p.material[a] {
-                    continue;
+                let mut sum = Vector3::zeros();
+                for k in 0..nb.n_fluid {
+                    let b = nb.j[k] as usize;
+                    let xab = xa - c.p.x[b];
+                    sum += (vol[b] * (va - v[b]).dot(&xab) / (xab.norm_squared() + eps_h)) * nb.g[k];
                 }
-                let xab = xa - c.p.x[b];
-                sum += (c.vol * (va - v[b]).dot(&xab) / (xab.norm_squared() + eps_h)) * nb.g[k];
+                let mut bsum = Vector3::zeros();
+                if s.boundary_viscosity > 0.0 {
+                    let nbb = c.nbb.of(a);
+                    for k in 0..nbb.j.len() {
+                        let kk = nbb.j[k] as usize;
+                        let xak = xa - c.bnd.x[kk];
+                        bsum += (c.bnd.volume[kk] / dens.rho_ratio[a] * (va - c.bnd.v[kk]).dot(&xak)
+                            / (xak.norm_squared() + eps_h))
+                            * nbb.g[k];
+                    }
+                }
+                *acc += LAPLACE_D * (s.viscosity * sum + s.boundary_viscosity * bsum);
+            } else {
+                let o = c.object(a);
+                let nu = o.material.damping;
+                if nu == 0.0 || c.rest.fixed[a - nf] {
+                    return;
+                }
+                let mut sum = Vector3::zeros();
+                for k in nb.n_fluid..nb.j.len() {
+                    let b = nb.j[k] as usize;
+                    if c.p.material[b] != c.p.material[a] {
+                        continue;
+                    }
+                    let xab = xa - c.p.x[b];
+                    sum += (c.vol * (va - v[b]).dot(&xab) / (xab.norm_squared() + eps_h)) * nb.g[k];
+                }
+                *acc += LAPLACE_D * nu * sum;
             }
-            *acc += LAPLACE_D * nu * sum;
-        }
-    });
+        },
+    );
 }
 
 /// Drag plus adhesion force (N) on every dynamic particle for velocities `v` at the current

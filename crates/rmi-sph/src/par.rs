@@ -45,3 +45,27 @@ where
         },
     )
 }
+
+/// Chunk length of [`for_each_hot`] (fixed, so the split never depends on the thread count).
+pub const HOT_CHUNK: usize = 1024;
+
+/// Calls `f(i, &mut out[i])` for every element in parallel, each chunk through
+/// [`crate::cpu::hot`] so that per-particle loops get the AVX2 copy. Pass `f` marked
+/// `#[inline(always)]` so that its body is compiled into that copy.
+#[inline(always)]
+pub fn for_each_hot<T, F>(out: &mut [T], f: F)
+where
+    T: Send,
+    F: Fn(usize, &mut T) + Sync,
+{
+    out.par_chunks_mut(HOT_CHUNK).enumerate().for_each(|(c, ch)| {
+        crate::cpu::hot(
+            #[inline(always)]
+            || {
+                for (k, x) in ch.iter_mut().enumerate() {
+                    f(c * HOT_CHUNK + k, x);
+                }
+            },
+        )
+    });
+}

@@ -50,7 +50,7 @@ pub struct PressureWork {
 }
 
 /// Pressure acceleration of particle `a` for the current kappa.
-#[inline]
+#[inline(always)]
 fn accel(c: &Ctx, a: usize, kappa: &[f64], rho0: &[f64], gb: &[Vector3<f64>]) -> Vector3<f64> {
     let nb = c.nb.of(a);
     let ka = kappa[a];
@@ -78,7 +78,7 @@ fn accel(c: &Ctx, a: usize, kappa: &[f64], rho0: &[f64], gb: &[Vector3<f64>]) ->
 }
 
 /// Divergence-like sum `sum_b f V (q_a - q_b) . grad W_ab` over dynamic neighbours.
-#[inline]
+#[inline(always)]
 fn div(c: &Ctx, a: usize, q: &[Vector3<f64>]) -> f64 {
     let nb = c.nb.of(a);
     let v = c.vol;
@@ -169,18 +169,35 @@ pub fn solve(
         {
             let kap: &[f64] = kappa;
             let gb = &work.gb;
-            work.ap.par_iter_mut().enumerate().for_each(|(a, ap)| *ap = accel(c, a, kap, rho0, gb));
+            par::for_each_hot(
+                &mut work.ap,
+                #[inline(always)]
+                |a, ap| *ap = accel(c, a, kap, rho0, gb),
+            );
         }
         {
             let ap: &[Vector3<f64>] = &work.ap;
             let source = &work.source;
             let gb = &work.gb;
-            kappa.par_iter_mut().zip(work.err.par_iter_mut()).enumerate().for_each(|(a, (ka, e))| {
-                let akappa = dt2 * (div(c, a, ap) + ap[a].dot(&gb[a]));
-                let residual = source[a] - akappa;
-                *e = (-residual).max(0.0);
-                let alpha = dens.alpha[a];
-                *ka = if alpha > 0.0 { (*ka - settings.omega * residual * alpha / dt2).max(0.0) } else { 0.0 };
+            let (kc, ec) = (kappa.par_chunks_mut(par::HOT_CHUNK), work.err.par_chunks_mut(par::HOT_CHUNK));
+            kc.zip(ec).enumerate().for_each(|(ci, (kc, ec))| {
+                crate::cpu::hot(
+                    #[inline(always)]
+                    || {
+                        for (k, (ka, e)) in kc.iter_mut().zip(ec.iter_mut()).enumerate() {
+                            let a = ci * par::HOT_CHUNK + k;
+                            let akappa = dt2 * (div(c, a, ap) + ap[a].dot(&gb[a]));
+                            let residual = source[a] - akappa;
+                            *e = (-residual).max(0.0);
+                            let alpha = dens.alpha[a];
+                            *ka = if alpha > 0.0 {
+                                (*ka - settings.omega * residual * alpha / dt2).max(0.0)
+                            } else {
+                                0.0
+                            };
+                        }
+                    },
+                )
             });
         }
         stats.iterations += 1;
@@ -201,7 +218,11 @@ pub fn solve(
     {
         let kap: &[f64] = kappa;
         let gb = &work.gb;
-        work.ap.par_iter_mut().enumerate().for_each(|(a, ap)| *ap = accel(c, a, kap, rho0, gb));
+        par::for_each_hot(
+            &mut work.ap,
+            #[inline(always)]
+            |a, ap| *ap = accel(c, a, kap, rho0, gb),
+        );
     }
     v.par_iter_mut().zip(work.ap.par_iter()).for_each(|(vi, ap)| *vi += dt * ap);
     kappa_dt2.par_iter_mut().zip(kappa.par_iter()).for_each(|(kt, k)| *kt = k * dt2);
