@@ -121,7 +121,11 @@ impl Grid {
     /// Linear cell index of a position (clamped into the grid).
     #[inline]
     pub fn cell_index(&self, p: &Vector3<f64>) -> usize {
-        let c = self.coord(p);
+        self.linear(self.coord(p))
+    }
+
+    #[inline]
+    fn linear(&self, c: [usize; 3]) -> usize {
         c[0] + self.dims[0] * (c[1] + self.dims[1] * c[2])
     }
 
@@ -144,7 +148,7 @@ impl Grid {
             return;
         }
         let c = self.coord(p);
-        if !self.near.is_empty() && !self.near[c[0] + self.dims[0] * (c[1] + self.dims[1] * c[2])] {
+        if !self.near.is_empty() && !self.near[self.linear(c)] {
             return;
         }
         let k = self.reach;

@@ -69,3 +69,23 @@ where
         )
     });
 }
+
+/// [`for_each_hot`] over two arrays of equal length: `f(i, &mut a[i], &mut b[i])`.
+#[inline(always)]
+pub fn for_each_hot2<A, B, F>(a: &mut [A], b: &mut [B], f: F)
+where
+    A: Send,
+    B: Send,
+    F: Fn(usize, &mut A, &mut B) + Sync,
+{
+    a.par_chunks_mut(HOT_CHUNK).zip(b.par_chunks_mut(HOT_CHUNK)).enumerate().for_each(|(c, (ca, cb))| {
+        crate::cpu::hot(
+            #[inline(always)]
+            || {
+                for (k, (x, y)) in ca.iter_mut().zip(cb.iter_mut()).enumerate() {
+                    f(c * HOT_CHUNK + k, x, y);
+                }
+            },
+        )
+    });
+}

@@ -179,26 +179,18 @@ pub fn solve(
             let ap: &[Vector3<f64>] = &work.ap;
             let source = &work.source;
             let gb = &work.gb;
-            let (kc, ec) = (kappa.par_chunks_mut(par::HOT_CHUNK), work.err.par_chunks_mut(par::HOT_CHUNK));
-            kc.zip(ec).enumerate().for_each(|(ci, (kc, ec))| {
-                crate::cpu::hot(
-                    #[inline(always)]
-                    || {
-                        for (k, (ka, e)) in kc.iter_mut().zip(ec.iter_mut()).enumerate() {
-                            let a = ci * par::HOT_CHUNK + k;
-                            let akappa = dt2 * (div(c, a, ap) + ap[a].dot(&gb[a]));
-                            let residual = source[a] - akappa;
-                            *e = (-residual).max(0.0);
-                            let alpha = dens.alpha[a];
-                            *ka = if alpha > 0.0 {
-                                (*ka - settings.omega * residual * alpha / dt2).max(0.0)
-                            } else {
-                                0.0
-                            };
-                        }
-                    },
-                )
-            });
+            par::for_each_hot2(
+                kappa,
+                &mut work.err,
+                #[inline(always)]
+                |a, ka, e| {
+                    let akappa = dt2 * (div(c, a, ap) + ap[a].dot(&gb[a]));
+                    let residual = source[a] - akappa;
+                    *e = (-residual).max(0.0);
+                    let alpha = dens.alpha[a];
+                    *ka = if alpha > 0.0 { (*ka - settings.omega * residual * alpha / dt2).max(0.0) } else { 0.0 };
+                },
+            );
         }
         stats.iterations += 1;
         let mut converged = true;

@@ -49,3 +49,9 @@ pub fn record(case: &str, setup: &str, measured: &str, analytic: &str, error: &s
     std::fs::write(&tmp, serde_json::to_vec_pretty(&json).unwrap()).expect("write record");
     std::fs::rename(&tmp, dir.join(format!("{name}.json"))).expect("rename record");
 }
+
+/// Bit patterns of every position and velocity, for bit-identity checks.
+pub fn bits(sim: &Simulation) -> Vec<u64> {
+    let p = sim.particles();
+    p.x.iter().chain(p.v.iter()).flat_map(|v| v.iter().map(|c| c.to_bits()).collect::<Vec<_>>()).collect()
+}

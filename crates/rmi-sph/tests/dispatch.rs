@@ -8,17 +8,13 @@ use common::*;
 use rmi_sph::config::ViscosityMode;
 use rmi_sph::{cpu, Simulation};
 
-fn bits(sim: &Simulation) -> Vec<u64> {
-    let p = sim.particles();
-    let x = p.x.iter().chain(p.v.iter()).flat_map(|v| v.iter().map(|c| c.to_bits()).collect::<Vec<_>>());
-    x.chain(sim.kappa().iter().map(|k| k.to_bits())).collect()
-}
-
 fn run_with(avx2: bool, cfg: &rmi_sph::config::SimConfig, steps: usize) -> Vec<u64> {
     cpu::set_avx2(avx2);
     let mut sim = Simulation::new(cfg.clone(), Some(2)).unwrap();
     run(&mut sim, steps);
-    bits(&sim)
+    let mut b = bits(&sim);
+    b.extend(sim.kappa().iter().map(|k| k.to_bits()));
+    b
 }
 
 #[test]

@@ -5,11 +5,6 @@ use common::*;
 use rmi_sph::config::*;
 use rmi_sph::{RmiError, Simulation};
 
-fn bits(sim: &Simulation) -> Vec<u64> {
-    let p = sim.particles();
-    p.x.iter().chain(p.v.iter()).flat_map(|v| v.iter().map(|c| c.to_bits()).collect::<Vec<_>>()).collect()
-}
-
 #[test]
 fn one_and_two_threads_are_bit_identical() {
     let cfg = small_sponge();
