@@ -1,9 +1,11 @@
 """World-model scoring latency: 8 action chunks of 32 steps against one shared history.
 
 For every model (trained run directories, or untrained models of the given kinds) it times
-the inference path (``torch.no_grad``) and, for the GRU models, the differentiable training
-loop on the same inputs, interleaved in blocks so that both see the same machine load.
-Prints the median of the block medians and the best block, in ms (issue 6 target: 5 ms).
+the inference path (``torch.no_grad``) and, for the GRU models, also their torch rollout
+(``native`` off) and the differentiable training loop on the same inputs, interleaved in
+blocks so that all see the same machine load. The GRUs' inference path is the native rollout
+(``rmi_sph.GruForecaster``), on ``--threads`` threads like torch. Prints the median of the
+block medians and the best block, in ms (issue 6 target: 5 ms on 2 cores).
 
     .venv/bin/python benches/bench_wm_latency.py [--runs DIR ...] [--kinds ac-gru,state-gru]
         [--threads 1] [--blocks 20] [--calls 15]
@@ -18,9 +20,13 @@ import time
 from typing import Any
 
 
-def _block(model: Any, hist: Any, mask: Any, actions: Any, calls: int, **kw: Any) -> float:
+def _block(
+    model: Any, hist: Any, mask: Any, actions: Any, calls: int, native: bool, **kw: Any
+) -> float:
     import torch
 
+    if hasattr(model, "native"):
+        model.native = native
     with torch.no_grad():
         for _ in range(3):
             model(hist, mask, actions, **kw)
@@ -55,9 +61,10 @@ def main() -> None:
     for name, model in models:
         hi, ma, actions = latency_inputs(model)
         # An empty teacher dict selects the GRUs' differentiable loop (no forcing at tf 0).
-        paths: dict[str, dict[str, Any]] = {"inference": {}}
+        paths: dict[str, dict[str, Any]] = {"inference": {"native": True}}
         if getattr(model, "recurrent", False):
-            paths["training loop"] = {"teacher": {}}
+            paths["torch rollout"] = {"native": False}
+            paths["training loop"] = {"native": False, "teacher": {}}
         blocks: dict[str, list[float]] = {k: [] for k in paths}
         for _ in range(args.blocks):
             for path, kw in paths.items():

@@ -145,9 +145,10 @@ def test_chunks_are_scored_against_one_shared_history(kind: str) -> None:
 
 @pytest.mark.parametrize("kind", ["ac-gru", "state-gru"])
 @pytest.mark.parametrize("groups", ["ALL", "LS+G"])
-def test_gru_inference_rollout_matches_the_training_loop(kind: str, groups: str) -> None:
-    """Without autograd the GRU models use a regrouped rollout (fewer, larger products);
-    it must give what the differentiable loop gives, also after the weights change."""
+def test_gru_inference_rollouts_match_the_training_loop(kind: str, groups: str) -> None:
+    """Without autograd the GRU models roll out natively (``rmi_sph.GruForecaster``) or,
+    with ``native`` off, through a regrouped torch rollout; both must give what the
+    differentiable loop gives, also after the weights change in place."""
     torch.manual_seed(0)
     model: Any = build({"kind": kind, "state_groups": groups}).eval()
     with torch.no_grad():
@@ -157,26 +158,96 @@ def test_gru_inference_rollout_matches_the_training_loop(kind: str, groups: str)
     mask[0, -1, :5] = 0.0  # the first decoder step reads the last observation's mask
     chunks = torch.randn(2 * 3, 20, 2)
 
-    def both() -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
+    def paths() -> dict[str, dict[str, torch.Tensor]]:
+        out = {}
         with torch.enable_grad():
-            loop = model(hist[:2], mask[:2], chunks)
+            out["loop"] = model(hist[:2], mask[:2], chunks)
         with torch.no_grad():
-            fast = model(hist[:2], mask[:2], chunks)
-        return loop, fast
+            for native in (True, False):
+                model.native = native
+                out[f"native={native}"] = model(hist[:2], mask[:2], chunks)
+        model.native = True
+        return out
 
     before = None
     for _ in range(2):
-        loop, fast = both()
-        for key in loop:
-            assert loop[key].requires_grad and not fast[key].requires_grad
-            torch.testing.assert_close(fast[key], loop[key], rtol=1e-4, atol=1e-4)
+        out = paths()
+        loop = out.pop("loop")
+        for name, fast in out.items():
+            for key in loop:
+                assert loop[key].requires_grad and not fast[key].requires_grad
+                torch.testing.assert_close(fast[key], loop[key], rtol=1e-4, atol=1e-4, msg=name)
         if before is not None:
-            assert (fast["z"] - before).abs().max() > 1e-2
-        before = fast["z"]
-        # An optimiser step changes the weights in place: the packed copy must follow.
+            assert (out["native=True"]["z"] - before).abs().max() > 1e-2
+        before = out["native=True"]["z"]
+        # An optimiser step changes the weights in place: the native and packed copies
+        # must follow.
         opt = torch.optim.SGD(model.parameters(), lr=1e-3)
         loop["z"].square().mean().backward()  # type: ignore[no-untyped-call]
         opt.step()
+
+
+def test_native_gru_rollout_is_used_and_independent_of_threads(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The default inference path is the native one; its results are the same bits for 1,
+    2 and 3 threads (3 splits 8 chunks unevenly), and ``RMI_WM_NATIVE=0`` switches it off."""
+    torch.manual_seed(1)
+    model: Any = build({"kind": "ac-gru"}).eval()
+    hist, mask, _ = random_inputs()
+    chunks = torch.randn(8, 32, 2)
+    threads = torch.get_num_threads()
+    outs = []
+    try:
+        for t in (1, 2, 3):
+            torch.set_num_threads(t)
+            with torch.no_grad():
+                outs.append(model(hist[:1], mask[:1], chunks))
+    finally:
+        torch.set_num_threads(threads)
+    assert getattr(model, "_native_cache", None) is not None
+    for o in outs[1:]:
+        for key in o:
+            assert torch.equal(o[key], outs[0][key]), key
+    monkeypatch.setenv("RMI_WM_NATIVE", "0")
+    model._native_cache = None
+    with torch.no_grad():
+        torch_out = model(hist[:1], mask[:1], chunks)
+    assert model._native_cache is None
+    torch.testing.assert_close(torch_out["z"], outs[0]["z"], rtol=1e-4, atol=1e-4)
+
+
+def test_native_gru_forecaster_rejects_bad_weights_and_inputs() -> None:
+    import rmi_sph
+    from rmi_learn.models.common import ASSEMBLE_INDEX
+
+    model: Any = build({"kind": "ac-gru"})
+    state = {k: v.detach().numpy() for k, v in model.state_dict().items()}
+    args = (model.obs_keep.numpy(), ASSEMBLE_INDEX.tolist(), list(CONTINUOUS_INDEX))
+    bad = dict(state, **{"decoder.1.weight_hh": state["decoder.1.weight_hh"][:, :64].copy()})
+    with pytest.raises(rmi_sph.ConfigError) as info:
+        rmi_sph.GruForecaster(bad, *args)
+    assert info.value.field == "decoder.1.weight_hh"
+    assert "[384, 128]" in str(info.value)
+    missing = {k: v for k, v in state.items() if k != "head.bias"}
+    with pytest.raises(rmi_sph.ConfigError, match="head.bias"):
+        rmi_sph.GruForecaster(missing, *args)
+    nan = dict(state, **{"head.bias": np.full(23, np.nan, dtype=np.float32)})
+    with pytest.raises(rmi_sph.ConfigError, match="finite"):
+        rmi_sph.GruForecaster(nan, *args)
+    with pytest.raises(ValueError, match="float32"):
+        rmi_sph.GruForecaster(dict(state, **{"head.bias": np.zeros(23)}), *args)
+    fc = rmi_sph.GruForecaster(state, *args)
+    assert fc.action_conditioned
+    hist = np.zeros((2, 16, 23), dtype=np.float32)
+    with pytest.raises(rmi_sph.ConfigError, match="multiple of the 2 histories"):
+        fc.forecast(hist, hist, np.zeros((3, 32, 2), dtype=np.float32))
+    with pytest.raises(rmi_sph.ConfigError, match="commands per step"):
+        fc.forecast(hist, hist, np.zeros((2, 32, 3), dtype=np.float32))
+    with pytest.raises(ValueError, match="num_threads"):
+        fc.forecast(hist, hist, np.zeros((2, 32, 2), dtype=np.float32), num_threads=0)
+    z, c, f = fc.forecast(hist, hist, np.zeros((2, 32, 2), dtype=np.float32), num_threads=2)
+    assert z.shape == (2, 32, 18) and c.shape == (2, 32) and f.shape == (2, 32, 4)
 
 
 def test_state_gru_ignores_actions_and_mlp_looks_ahead() -> None:
@@ -572,3 +643,24 @@ def test_ac_gru_learns_the_action_effect(tmp_path: Path) -> None:
     assert ac[w] < 0.6 * shuf[w], (ac[w], shuf[w])
     assert ac[w] < 0.6 * state[w], (ac[w], state[w])
     assert ac["fric_bacc@16"] > shuf["fric_bacc@16"] + 0.1
+
+
+def test_gru_inference_stays_in_torch_without_avx2() -> None:
+    """Without the AVX2 + FMA copy the native products would be library calls (slow), so
+    the GRU models keep inference in torch; ``RMI_NO_AVX2`` simulates such a CPU."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import torch, rmi_sph\n"
+        "from rmi_learn.models import build\n"
+        "assert not rmi_sph.GruForecaster.accelerated()\n"
+        "m = build({'kind': 'ac-gru'}).eval()\n"
+        "with torch.no_grad():\n"
+        "    out = m(torch.zeros(1, 16, 23), torch.ones(1, 16, 23), torch.zeros(8, 32, 2))\n"
+        "assert getattr(m, '_native_cache', None) is None\n"
+        "assert out['z'].shape == (8, 32, 18)\n"
+    )
+    env = dict(os.environ, RMI_NO_AVX2="1")
+    subprocess.run([sys.executable, "-c", code], env=env, check=True, timeout=120)

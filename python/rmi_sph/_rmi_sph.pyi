@@ -19,6 +19,7 @@ __all__ = [
     "default_config",
     "validate_config",
     "Simulation",
+    "GruForecaster",
     "RmiError",
     "ConfigError",
     "SimulationUnstableError",
@@ -139,6 +140,35 @@ class Simulation:
     def load(path: str | os.PathLike[str], num_threads: int | None = None) -> Simulation:
         """A simulation continuing from a state file."""
     def __reduce__(self) -> tuple[Any, ...]: ...
+
+@final
+class GruForecaster:
+    """Free rollout of a trained AC-GRU-WM or State-GRU-WM in one native call (the
+    ``rmi-wm`` crate); ``rmi_learn.models.gru`` uses it for inference on CPU."""
+
+    def __new__(
+        cls,
+        state: dict[str, npt.NDArray[np.float32]],
+        keep: npt.NDArray[np.float32],
+        assemble: list[int],
+        continuous: list[int],
+    ) -> GruForecaster: ...
+    @staticmethod
+    def accelerated() -> bool:
+        """Whether this CPU runs the rollout's AVX2 + FMA copy (else it is slow)."""
+    @property
+    def action_conditioned(self) -> bool:
+        """Whether the model reads the commands (AC-GRU-WM)."""
+    def forecast(
+        self,
+        hist: npt.NDArray[np.float32],
+        hist_mask: npt.NDArray[np.float32],
+        actions: npt.NDArray[np.float32],
+        *,
+        num_threads: int = 1,
+    ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+        """``z`` (n, H, 18), ``contact_logit`` (n, H), ``friction_logit`` (n, H, 4) for ``n``
+        chunks against ``b`` histories; the same bits for any ``num_threads``."""
 
 class RmiError(Exception):
     """Base class of every error raised by the rmi engine."""

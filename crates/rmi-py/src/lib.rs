@@ -12,6 +12,7 @@ mod errors;
 mod panic;
 mod run;
 mod sim;
+mod wm;
 
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -170,6 +171,7 @@ fn _rmi_sph(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(default_config, m)?)?;
     m.add_function(wrap_pyfunction!(validate_config, m)?)?;
     m.add_class::<sim::PySimulation>()?;
+    m.add_class::<wm::PyGruForecaster>()?;
     errors::register(m)?;
     Ok(())
 }

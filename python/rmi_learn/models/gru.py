@@ -8,12 +8,17 @@ contact and friction logits. The first step's input is the latest observation an
 later inputs are the model's own predictions (contact probability, friction probabilities)
 marked valid, or, with teacher forcing, the ground truth with its mask.
 
-Without autograd (planning, evaluation) the same equations run through ``_rollout``, which
-regroups the products for speed; the differentiable loop in ``forward`` is the reference.
+Without autograd (planning, evaluation) the same equations run in one native call on CPU
+(``rmi_sph.GruForecaster``, the ``rmi-wm`` crate: the whole rollout without per-kernel
+dispatch, its chunks split over ``torch.get_num_threads()`` threads with identical results for
+any count), or elsewhere through ``_rollout``, which regroups the products for speed. The
+differentiable loop in ``forward`` is the reference for both. Set ``RMI_WM_NATIVE=0`` (or the
+model's ``native`` attribute to False) to keep inference in torch.
 """
 
 from __future__ import annotations
 
+import os
 from typing import Any, NamedTuple, cast
 
 import torch
@@ -30,6 +35,21 @@ from rmi_learn.models.common import (
     assemble_obs,
     last_z,
 )
+from rmi_learn.schema import CONTINUOUS_INDEX
+
+#: Environment variable: "0" keeps GRU inference in torch instead of the native rollout.
+NATIVE_ENV = "RMI_WM_NATIVE"
+
+
+def _native_class() -> Any:
+    """``rmi_sph.GruForecaster``, or None where the extension lacks it or the CPU lacks the
+    AVX2 + FMA its speed depends on."""
+    try:
+        import rmi_sph
+    except ImportError:
+        return None
+    cls = getattr(rmi_sph, "GruForecaster", None)
+    return cls if cls is not None and cls.accelerated() else None
 
 
 class _PackedDecoder(NamedTuple):
@@ -50,6 +70,8 @@ class GRUWorldModel(WorldModel):
     recurrent = True
     # Chunks scored for one history share its encoding: the encoder runs once per history.
     shares_history = True
+    #: Free rollouts of float32 CPU tensors run natively (see the module docstring).
+    native = True
 
     def __init__(
         self,
@@ -106,6 +128,8 @@ class GRUWorldModel(WorldModel):
         if n % b:
             raise ValueError(f"{n} action chunks do not split evenly over {b} histories")
         rep = n // b
+        if teacher is None and not torch.is_grad_enabled() and self._native_ok(hist, actions):
+            return self._native_forecast(hist, hist_mask, actions)
         keep = self.obs_keep
         _, h_enc = self.encoder(torch.cat([hist, hist_mask], dim=-1))
         h = list(h_enc.repeat_interleave(rep, dim=1).unbind(0))
@@ -149,6 +173,45 @@ class GRUWorldModel(WorldModel):
             "z": torch.stack(zs, 1),
             "contact_logit": torch.stack(cs, 1),
             "friction_logit": torch.stack(fs, 1),
+        }
+
+    def _native_ok(self, *tensors: torch.Tensor) -> bool:
+        return (
+            self.native
+            and os.environ.get(NATIVE_ENV, "1") != "0"
+            and all(t.device.type == "cpu" and t.dtype == torch.float32 for t in tensors)
+            and _native_class() is not None
+        )
+
+    def _native_forecast(
+        self, hist: torch.Tensor, hist_mask: torch.Tensor, actions: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
+        """The free rollout in one native call (weights copied once per weight change)."""
+        key = tuple((p.data_ptr(), p._version) for p in self.parameters())
+        cached: tuple[Any, Any] | None = getattr(self, "_native_cache", None)
+        if cached is None or cached[0] != key:
+            state = {
+                k: v.detach().to(torch.float32).contiguous().numpy()
+                for k, v in self.state_dict().items()
+            }
+            fc = _native_class()(
+                state,
+                self.obs_keep.numpy(),
+                ASSEMBLE_INDEX.tolist(),
+                list(CONTINUOUS_INDEX),
+            )
+            cached = (key, fc)
+            self._native_cache = cached
+        z, c, f = cached[1].forecast(
+            hist.detach().numpy(),
+            hist_mask.detach().numpy(),
+            actions.detach().numpy(),
+            num_threads=max(1, torch.get_num_threads()),
+        )
+        return {
+            "z": torch.from_numpy(z),
+            "contact_logit": torch.from_numpy(c),
+            "friction_logit": torch.from_numpy(f),
         }
 
     def _cells(self) -> list[nn.GRUCell]:
