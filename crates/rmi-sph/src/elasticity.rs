@@ -19,9 +19,6 @@ pub struct ElasticFields {
     pub gsum: Vec<Vector3<f64>>,
     /// Full deformation gradient `sum_r V_r0 (x_r - x_s) (x) L_s grad W0_sr` (hourglass control).
     pub ftil: Vec<Matrix3<f64>>,
-    /// Per rest pair `dt V_r0 R_s L_s grad W0_sr` (s/m), the strain weight of the linearised
-    /// stress, cached because every CG pass needs it.
-    pub lin_g: Vec<Vector3<f64>>,
     /// Per solid the saturation-adjusted (shear modulus, trace coefficient) (Pa).
     pub moduli: Vec<(f64, f64)>,
 }
@@ -122,14 +119,6 @@ pub fn prepare(c: &Ctx, rot: &[UnitQuaternion<f64>], saturation: &[f64], out: &m
         out.ftil.push(f);
         out.moduli.push(m);
     }
-    let dt = c.dt;
-    out.lin_g = (0..ns)
-        .into_par_iter()
-        .flat_map_iter(|s| {
-            (rest.start[s] as usize..rest.start[s + 1] as usize)
-                .map(move |e| (dt * rest.v0[rest.nbr[e] as usize - nf]) * (rl[s] * rest.grad0[e]))
-        })
-        .collect();
 }
 
 /// Hourglass spring constants (N/m) per rest pair: `alpha E V_s0 V_r0 W0_sr / |x0_sr|^2`
@@ -190,19 +179,25 @@ pub fn hourglass_linear(c: &Ctx, s: usize, y: &[Vector3<f64>]) -> Vector3<f64> {
     f
 }
 
-/// Linearised stress term P(eps(y)) R L for velocities `y`: eps = sym(dt sum V0 (y_r - y_s) (x) g).
+/// Linearised stress term P(eps(y)) R L for velocities `y`: eps = sym(dt sum V0 (y_r - y_s) (x) g)
+/// with `g = R_s L_s grad W0_sr`, summed as `dt (sum V0 (y_r - y_s) (x) grad W0_sr) (R_s L_s)^T`:
+/// the rotation enters once per particle, not once per pair, so the pass reads only the rest
+/// data every CG iteration (it is memory-bound at fine resolution).
 pub fn linear_prl(c: &Ctx, ef: &ElasticFields, y: &[Vector3<f64>], out: &mut [Matrix3<f64>]) {
     let nf = c.p.n_fluid;
     let rest = c.rest;
+    let dt = c.dt;
     crate::par::for_each_hot(
         out,
         #[inline(always)]
         |s, prl| {
             let ya = y[nf + s];
-            let mut grad = Matrix3::zeros();
+            let mut sum = Matrix3::zeros();
             for e in rest.start[s] as usize..rest.start[s + 1] as usize {
-                grad += (y[rest.nbr[e] as usize] - ya) * ef.lin_g[e].transpose();
+                let r = rest.nbr[e] as usize;
+                sum += (rest.v0[r - nf] * (y[r] - ya)) * rest.grad0[e].transpose();
             }
+            let grad = dt * sum * ef.rl[s].transpose();
             let (mu, lam) = ef.moduli[s];
             *prl = stress(&grad, mu, lam, 0.0) * ef.rl[s];
         },
