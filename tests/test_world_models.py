@@ -664,3 +664,33 @@ def test_gru_inference_stays_in_torch_without_avx2() -> None:
     )
     env = dict(os.environ, RMI_NO_AVX2="1")
     subprocess.run([sys.executable, "-c", code], env=env, check=True, timeout=120)
+
+
+def test_one_native_forecaster_serves_several_python_threads() -> None:
+    """The GIL is released during a forecast, so planners may score from several threads
+    with one forecaster; each call gives what it gives alone."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import rmi_sph
+    from rmi_learn.models.common import ASSEMBLE_INDEX
+
+    torch.manual_seed(2)
+    model: Any = build({"kind": "ac-gru"})
+    state = {k: v.detach().numpy() for k, v in model.state_dict().items()}
+    fc = rmi_sph.GruForecaster(
+        state, model.obs_keep.numpy(), ASSEMBLE_INDEX.tolist(), list(CONTINUOUS_INDEX)
+    )
+    rng = np.random.default_rng(0)
+    inputs = [
+        (
+            rng.standard_normal((1, 16, 23), dtype=np.float32),
+            np.ones((1, 16, 23), dtype=np.float32),
+            rng.standard_normal((8, 32, 2), dtype=np.float32),
+        )
+        for _ in range(6)
+    ]
+    alone = [fc.forecast(*x)[0] for x in inputs]
+    with ThreadPoolExecutor(3) as ex:
+        together = list(ex.map(lambda x: fc.forecast(*x, num_threads=2)[0], inputs * 3))
+    for i, z in enumerate(together):
+        assert np.array_equal(z, alone[i % len(inputs)])

@@ -2,6 +2,7 @@
 //! `rmi_learn.models.gru` (numpy `float32` in and out, GIL released while it runs).
 
 use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
 
 use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray3, PyUntypedArrayMethods};
 use pyo3::exceptions::PyValueError;
@@ -33,7 +34,9 @@ use crate::panic::{catch, into_py};
 #[pyclass(name = "GruForecaster", module = "rmi_sph")]
 pub struct PyGruForecaster {
     model: GruWorldModel,
-    pool: Option<rayon::ThreadPool>,
+    /// The last pool used (rebuilt when the thread count changes); behind a lock so that
+    /// several Python threads may score with one forecaster at once.
+    pool: Mutex<Option<Arc<rayon::ThreadPool>>>,
 }
 
 #[pymethods]
@@ -57,7 +60,7 @@ impl PyGruForecaster {
         }
         let spec = Spec { keep: keep.as_array().to_vec(), assemble, continuous };
         let model = into_py(catch(|| GruWorldModel::from_state(&weights, spec)))?;
-        Ok(PyGruForecaster { model, pool: None })
+        Ok(PyGruForecaster { model, pool: Mutex::new(None) })
     }
 
     /// Whether this CPU runs the rollout's AVX2 + FMA copy. Without it (or with
@@ -92,7 +95,7 @@ impl PyGruForecaster {
     ///     ``z`` (n, H, 18), ``contact_logit`` (n, H), ``friction_logit`` (n, H, 4).
     #[pyo3(signature = (hist, hist_mask, actions, *, num_threads=1))]
     fn forecast<'py>(
-        &mut self,
+        &self,
         py: Python<'py>,
         hist: PyReadonlyArray3<'py, f32>,
         hist_mask: PyReadonlyArray3<'py, f32>,
@@ -102,14 +105,22 @@ impl PyGruForecaster {
         if num_threads == 0 {
             return Err(PyValueError::new_err("num_threads must be at least 1"));
         }
-        if self.pool.as_ref().map_or(1, |p| p.current_num_threads()) != num_threads {
-            self.pool = if num_threads > 1 {
-                let p = rayon::ThreadPoolBuilder::new().num_threads(num_threads).build();
-                Some(p.map_err(|e| PyValueError::new_err(format!("cannot start {num_threads} threads: {e}")))?)
-            } else {
-                None
-            };
-        }
+        let pool = if num_threads > 1 {
+            let mut cached = self.pool.lock().unwrap_or_else(|e| e.into_inner());
+            match cached.as_ref() {
+                Some(p) if p.current_num_threads() == num_threads => Some(Arc::clone(p)),
+                _ => {
+                    let p = rayon::ThreadPoolBuilder::new().num_threads(num_threads).build();
+                    let p = Arc::new(
+                        p.map_err(|e| PyValueError::new_err(format!("cannot start {num_threads} threads: {e}")))?,
+                    );
+                    *cached = Some(Arc::clone(&p));
+                    Some(p)
+                }
+            }
+        } else {
+            None
+        };
         let (hs, ms, us) = (hist.shape().to_vec(), hist_mask.shape().to_vec(), actions.shape().to_vec());
         if ms != hs {
             return Err(PyValueError::new_err(format!("hist_mask has shape {ms:?}, hist {hs:?}")));
@@ -122,8 +133,8 @@ impl PyGruForecaster {
         if hs[2] != self.model.n_obs() {
             return Err(PyValueError::new_err(format!("hist has {} channels, expected {}", hs[2], self.model.n_obs())));
         }
-        let (model, pool) = (&self.model, self.pool.as_ref());
-        let f = into_py(py.detach(|| catch(|| model.forecast(x, pool))))?;
+        let model = &self.model;
+        let f = into_py(py.detach(|| catch(|| model.forecast(x, pool.as_deref()))))?;
         let (n, h) = (us[0], us[1]);
         let z = PyArray1::from_vec(py, f.z).reshape([n, h, self.model.n_z()])?.into_any();
         let c = PyArray1::from_vec(py, f.contact_logit).reshape([n, h])?.into_any();

@@ -279,15 +279,22 @@ impl GruWorldModel {
             let rows = c.len() / x.h;
             self.group(&x, lo, rows, z, c, f);
         };
-        let parts = out
-            .z
-            .par_chunks_mut(per * x.h * n_z)
-            .zip(out.contact_logit.par_chunks_mut(per * x.h))
-            .zip(out.friction_logit.par_chunks_mut(per * x.h * n_fric))
-            .enumerate();
+        let (zl, cl, fl) = (per * x.h * n_z, per * x.h, per * x.h * n_fric);
+        let Forecast { z, contact_logit, friction_logit } = &mut out;
         match pool {
-            Some(p) if groups > 1 => p.install(|| parts.for_each(run)),
-            _ => parts.collect::<Vec<_>>().into_iter().for_each(run),
+            Some(p) if groups > 1 => p.install(|| {
+                z.par_chunks_mut(zl)
+                    .zip(contact_logit.par_chunks_mut(cl))
+                    .zip(friction_logit.par_chunks_mut(fl))
+                    .enumerate()
+                    .for_each(run)
+            }),
+            _ => z
+                .chunks_mut(zl)
+                .zip(contact_logit.chunks_mut(cl))
+                .zip(friction_logit.chunks_mut(fl))
+                .enumerate()
+                .for_each(run),
         }
         Ok(out)
     }
