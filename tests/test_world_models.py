@@ -694,3 +694,27 @@ def test_one_native_forecaster_serves_several_python_threads() -> None:
         together = list(ex.map(lambda x: fc.forecast(*x, num_threads=2)[0], inputs * 3))
     for i, z in enumerate(together):
         assert np.array_equal(z, alone[i % len(inputs)])
+
+
+def test_gru_model_copies_and_pickles_after_native_inference() -> None:
+    """The cached native forecaster is dropped from copies (EMA or best-model snapshots use
+    ``copy.deepcopy``; ``torch.save`` pickles) and rebuilt by the copy on its next call."""
+    import copy
+    import io
+    import pickle
+
+    torch.manual_seed(3)
+    model: Any = build({"kind": "ac-gru"}).eval()
+    hist, mask, _ = random_inputs()
+    chunks = torch.randn(4, 32, 2)
+    with torch.no_grad():
+        ref = model(hist[:1], mask[:1], chunks)
+    assert model._native_cache is not None
+    twin = copy.deepcopy(model)
+    again = pickle.loads(pickle.dumps(model))
+    buf = io.BytesIO()
+    torch.save(model, buf)
+    for m in (twin, again):
+        assert getattr(m, "_native_cache", None) is None
+        with torch.no_grad():
+            assert torch.equal(m(hist[:1], mask[:1], chunks)["z"], ref["z"])

@@ -175,6 +175,12 @@ class GRUWorldModel(WorldModel):
             "friction_logit": torch.stack(fs, 1),
         }
 
+    def __getstate__(self) -> dict[str, Any]:
+        # The native forecaster cannot be pickled or deep-copied; it is rebuilt on demand.
+        state = self.__dict__.copy()
+        state.pop("_native_cache", None)
+        return state
+
     def _native_ok(self, *tensors: torch.Tensor) -> bool:
         return (
             self.native
