@@ -137,11 +137,12 @@ impl GruWorldModel {
                 format!("{n_obs} entries (one per channel)"),
             ));
         }
-        if n_z + 2 > n_obs {
+        // The head is [z (n_z) | contact (1) | friction (at least 1)], z not empty.
+        if n_z == 0 || n_z + 2 > n_obs {
             return Err(RmiError::config(
                 "spec.continuous",
-                n_z,
-                format!("at most {} entries", n_obs.saturating_sub(2)),
+                format!("{n_z} entries"),
+                format!("1 to {} entries", n_obs.saturating_sub(2)),
             ));
         }
         if let Some(&i) = spec.assemble.iter().chain(&spec.continuous).find(|&&i| i >= n_obs) {

@@ -113,6 +113,10 @@ fn bad_weights_and_inputs_name_the_field() {
     let mut bad = spec();
     bad.assemble[0] = N_OBS;
     assert!(GruWorldModel::from_state(&state(3), bad).is_err());
+    for continuous in [vec![], vec![0, 1, 2, 3, 4, 5]] {
+        let bad = Spec { continuous, ..spec() };
+        assert_eq!(field(GruWorldModel::from_state(&state(3), bad).unwrap_err()), "spec.continuous");
+    }
 
     let m = GruWorldModel::from_state(&state(3), spec()).unwrap();
     let (hist, mask, act) = data(2, 3, 4, 5);
