@@ -80,15 +80,18 @@ def _deltas(runs: dict[int, dict[str, np.ndarray]], horizon: int) -> tuple[np.nd
     return np.array(d), np.array(feats)
 
 
-def floors(d: np.ndarray) -> tuple[float, float, float]:
-    """(baseline, floor_in, floor_loo) in the units of ``d`` (seeds x anchors)."""
+def errors(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per seed and anchor of ``d`` (seeds x anchors): the Baseline's error |D|, and D's
+    signed deviations from the seeds' median and from the median of the other seeds."""
     med = np.median(d, axis=0)
     loo = np.array([np.median(np.delete(d, s, axis=0), axis=0) for s in range(len(d))])
-    return (
-        float(np.mean(np.abs(d))),
-        float(np.mean(np.abs(d - med))),
-        float(np.mean(np.abs(d - loo))),
-    )
+    return np.abs(d), d - med, d - loo
+
+
+def floors(d: np.ndarray) -> tuple[float, float, float]:
+    """(baseline, floor_in, floor_loo) in the units of ``d`` (seeds x anchors)."""
+    base, dev_in, dev_loo = errors(d)
+    return float(np.mean(base)), float(np.mean(np.abs(dev_in))), float(np.mean(np.abs(dev_loo)))
 
 
 def main() -> None:
@@ -110,16 +113,17 @@ def main() -> None:
         if d.shape[1] == 0:
             print(f"{size} cm phi {phi}: no anchor common to all seeds")
             continue
-        med = np.median(d, axis=0)
-        loo = np.array([np.median(np.delete(d, s, axis=0), axis=0) for s in range(len(d))])
-        base, f_in, f_loo = (v * 1e3 for v in floors(d))
+        err, dev_in, dev_loo = errors(d)
+        base, f_in, f_loo = (
+            float(np.mean(v)) * 1e3 for v in (err, np.abs(dev_in), np.abs(dev_loo))
+        )
         acc = per_size[size]
         per_size[size] = [
-            np.concatenate([acc[0], np.abs(d).ravel()]),
-            np.concatenate([acc[1], np.abs(d - med).ravel()]),
-            np.concatenate([acc[2], np.abs(d - loo).ravel()]),
+            np.concatenate([acc[0], err.ravel()]),
+            np.concatenate([acc[1], np.abs(dev_in).ravel()]),
+            np.concatenate([acc[2], np.abs(dev_loo).ravel()]),
         ]
-        dev_d.append((d - med).ravel())
+        dev_d.append(dev_in.ravel())
         dev_x.append((x - np.median(x, axis=0)).reshape(-1, x.shape[-1]))
         rec: dict[str, Any] = {
             "size_cm": size,

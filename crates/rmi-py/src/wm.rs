@@ -130,9 +130,6 @@ impl PyGruForecaster {
         let (h_vec, m_vec, u_vec) = (owned(&hist), owned(&hist_mask), owned(&actions));
         let x =
             Inputs { hist: &h_vec, mask: &m_vec, actions: &u_vec, b: hs[0], l: hs[1], n: us[0], h: us[1], n_u: us[2] };
-        if hs[2] != self.model.n_obs() {
-            return Err(PyValueError::new_err(format!("hist has {} channels, expected {}", hs[2], self.model.n_obs())));
-        }
         let model = &self.model;
         let f = into_py(py.detach(|| catch(|| model.forecast(x, pool.as_deref()))))?;
         let (n, h) = (us[0], us[1]);

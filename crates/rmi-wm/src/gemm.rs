@@ -67,21 +67,22 @@ fn acc_body(x: &[f32], ldx: usize, rows: usize, w: &Mat, out: &mut [f32], ldo: u
 }
 
 /// `R` rows against column blocks of `C` (R * C / 8 vector accumulators), then the column
-/// tail one element at a time in the same order. The rows' values are first interleaved
-/// (`xt[k] = [x[0][k], .., x[R-1][k]]`) so that the inner loop is free of index checks.
+/// tail one element at a time in the same order.
 #[inline(always)]
 fn panel<const R: usize, const C: usize>(x: &[f32], ldx: usize, w: &Mat, out: &mut [f32], ldo: usize) {
     let (k_len, n) = (w.rows, w.cols);
-    let xt: Vec<[f32; R]> = (0..k_len).map(|k| std::array::from_fn(|r| x[r * ldx + k])).collect();
+    let xs: [&[f32]; R] = std::array::from_fn(|r| &x[r * ldx..r * ldx + k_len]);
+    let wrows = || w.data.chunks_exact(n).take(k_len);
     let mut j = 0;
     while j + C <= n {
         let mut a = [[0.0f32; C]; R];
         for (r, ar) in a.iter_mut().enumerate() {
             ar.copy_from_slice(&out[r * ldo + j..r * ldo + j + C]);
         }
-        for (xk, wrow) in xt.iter().zip(w.data.chunks_exact(n)) {
+        for (k, wrow) in wrows().enumerate() {
             let wk: &[f32; C] = wrow[j..j + C].try_into().expect("panel width");
-            for (ar, &xv) in a.iter_mut().zip(xk) {
+            for (ar, xr) in a.iter_mut().zip(&xs) {
+                let xv = xr[k];
                 for c in 0..C {
                     ar[c] = xv.mul_add(wk[c], ar[c]);
                 }
@@ -92,11 +93,11 @@ fn panel<const R: usize, const C: usize>(x: &[f32], ldx: usize, w: &Mat, out: &m
         }
         j += C;
     }
-    for r in 0..R {
+    for (r, xr) in xs.iter().enumerate() {
         for jj in j..n {
             let mut s = out[r * ldo + jj];
-            for (xk, wrow) in xt.iter().zip(w.data.chunks_exact(n)) {
-                s = xk[r].mul_add(wrow[jj], s);
+            for (&xv, wrow) in xr.iter().zip(wrows()) {
+                s = xv.mul_add(wrow[jj], s);
             }
             out[r * ldo + jj] = s;
         }

@@ -344,13 +344,19 @@ impl GruWorldModel {
             (0..rows).flat_map(|r| continuous.iter().map(move |&j| x.hist[last(r) + j] * keep[j])).collect();
 
         // Layer-0 input gates that do not depend on the rollout: bias, mask term, commands.
+        // Step 0 sees the observed mask (its term is accumulated here); later steps see
+        // `keep`, whose term is folded into `b_rest`.
         let mut pre = vec![0.0f32; rows * h_len * g3];
-        fill_rows(&mut pre, rows * h_len, &self.b_rest);
-        let mut cmd = Vec::new();
+        for slots in pre.chunks_exact_mut(h_len * g3) {
+            slots[..g3].copy_from_slice(&self.decoder[0].b_ih);
+            fill_rows(&mut slots[g3..], h_len - 1, &self.b_rest);
+        }
+        let mask0: Vec<f32> = (0..rows).flat_map(|r| (0..n_obs).map(move |j| x.mask[last(r) + j] * keep[j])).collect();
+        acc(&mask0, n_obs, rows, &self.w_m, &mut pre, h_len * g3);
         if let (Some(enc), Some(w_e)) = (&self.command, &self.w_e) {
             let e = enc.width();
             let mut hidden = vec![0.0f32; rows * h_len * e];
-            cmd = vec![0.0f32; rows * h_len * e];
+            let mut cmd = vec![0.0f32; rows * h_len * e];
             enc.forward(
                 &x.actions[lo * h_len * x.n_u..(lo + rows) * h_len * x.n_u],
                 rows * h_len,
@@ -358,17 +364,6 @@ impl GruWorldModel {
                 &mut cmd,
             );
             acc(&cmd, e, rows * h_len, w_e, &mut pre, g3);
-        }
-        // Step 0 sees the observed mask instead of `keep`.
-        let mask0: Vec<f32> = (0..rows).flat_map(|r| (0..n_obs).map(move |j| x.mask[last(r) + j] * keep[j])).collect();
-        let d0 = &self.decoder[0];
-        for r in 0..rows {
-            pre[r * h_len * g3..r * h_len * g3 + g3].copy_from_slice(&d0.b_ih);
-        }
-        acc(&mask0, n_obs, rows, &self.w_m, &mut pre, h_len * g3);
-        if let Some(w_e) = &self.w_e {
-            let e = w_e.rows;
-            acc(&cmd, h_len * e, rows, w_e, &mut pre, h_len * g3);
         }
 
         let mut head = vec![0.0f32; rows * n_head];

@@ -18,6 +18,7 @@ model's ``native`` attribute to False) to keep inference in torch.
 
 from __future__ import annotations
 
+import functools
 import os
 from typing import Any, NamedTuple, cast
 
@@ -41,9 +42,10 @@ from rmi_learn.schema import CONTINUOUS_INDEX
 NATIVE_ENV = "RMI_WM_NATIVE"
 
 
+@functools.cache
 def _native_class() -> Any:
     """``rmi_sph.GruForecaster``, or None where the extension lacks it or the CPU lacks the
-    AVX2 + FMA its speed depends on."""
+    AVX2 + FMA its speed depends on (both fixed for the process)."""
     try:
         import rmi_sph
     except ImportError:
