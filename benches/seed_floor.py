@@ -3,9 +3,9 @@
 Runs that differ only in the seed of the initial pore-water jitter get the same command
 schedule, yet release their water particles at different moments. At every grid time k the
 water change over the forecast horizon, D_s(k) = M_L,s(k + H) - M_L,s(k), then differs
-between seeds by an amount that the commands cannot explain. Per (size, porosity) group and
-time it prints, in grams, over the anchors the world-model tables use (learning phases, the
-target inside the same run):
+between seeds by an amount that the commands cannot explain. Per condition (size, porosity,
+holding and squeeze force) it prints, in grams, over the anchors the world-model tables use
+(learning phases, the target inside the same run):
 
 - ``baseline``: mean |D_s(k)|, the persistence forecast's error;
 - ``floor_in``: mean |D_s(k) - median_s D(k)| over the seeds (the error of the best
@@ -22,6 +22,9 @@ now, 0.16 s and 0.32 s ago, saturation, pore volume, force, width; pooled over a
 
     .venv/bin/rmi sweep --grid benches/grids/study-replicates.json --out results/replicates/sweep
     .venv/bin/python benches/seed_floor.py results/replicates/sweep [--horizon 32] [--json]
+
+Several sweeps may be given (one per grid, e.g. the held-out test groups of the study split,
+``benches/grids/test-replicates/*.json``); the per-size lines pool every condition's anchors.
 """
 
 from __future__ import annotations
@@ -38,19 +41,37 @@ FEATURES = ("M_L", "S", "V_pore", "F_meas", "w")
 LAGS = (0, 8, 16)
 
 
-def _load(sweep: Path) -> dict[tuple[int, float], dict[int, dict[str, np.ndarray]]]:
+Condition = tuple[int, float, float, float]
+
+
+def condition(row: dict[str, Any]) -> Condition:
+    """(size cm, porosity, holding N, squeeze N) of a sweep index row: the runs that share it
+    differ only in the seed."""
+    return (
+        int(row["size_cm"]),
+        float(row["porosity"]),
+        float(row["F_hold"]),
+        float(row["F_squeeze"]),
+    )
+
+
+def _load(sweeps: list[Path]) -> dict[Condition, dict[int, dict[str, np.ndarray]]]:
     import polars as pl
 
     from rmi_learn.dataset import resample_run, select_learning_rows
     from rmi_learn.runs import read_run
 
-    index = pl.read_parquet(sweep / "index.parquet").filter(pl.col("status") == "ok")
-    groups: dict[tuple[int, float], dict[int, dict[str, np.ndarray]]] = defaultdict(dict)
-    for row in index.iter_rows(named=True):
-        df, _ = read_run(sweep / row["path"])
-        r = resample_run(df)
-        r["keep"] = select_learning_rows(r["phase"])
-        groups[(int(row["size_cm"]), float(row["porosity"]))][int(row["seed"])] = r
+    groups: dict[Condition, dict[int, dict[str, np.ndarray]]] = defaultdict(dict)
+    for sweep in sweeps:
+        index = pl.read_parquet(sweep / "index.parquet").filter(pl.col("status") == "ok")
+        for row in index.iter_rows(named=True):
+            df, _ = read_run(sweep / row["path"])
+            r = resample_run(df)
+            r["keep"] = select_learning_rows(r["phase"])
+            seeds = groups[condition(row)]
+            if int(row["seed"]) in seeds:
+                raise ValueError(f"{sweep}: {condition(row)} seed {row['seed']} given twice")
+            seeds[int(row["seed"])] = r
     return groups
 
 
@@ -96,7 +117,7 @@ def floors(d: np.ndarray) -> tuple[float, float, float]:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("sweep", type=Path, help="rmi sweep output of a grid with several seeds")
+    p.add_argument("sweep", type=Path, nargs="+", help="rmi sweep outputs with several seeds")
     p.add_argument("--horizon", type=int, default=32, help="steps of 20 ms (32: 0.64 s)")
     p.add_argument("--json", action="store_true", help="one JSON line per group")
     args = p.parse_args()
@@ -105,13 +126,14 @@ def main() -> None:
     dev_d, dev_x = [], []
     per_size: dict[int, list[np.ndarray]] = defaultdict(lambda: [np.zeros(0)] * 3)
     print(f"horizon {args.horizon * 0.02:.2f} s; water in g")
-    for (size, phi), runs in sorted(groups.items()):
+    for (size, phi, hold, squeeze), runs in sorted(groups.items()):
+        label = f"{size:2d} cm phi {phi:.1f} {hold:3.0f}/{squeeze:3.0f} N"
         if len(runs) < 3:
-            print(f"{size} cm phi {phi}: {len(runs)} seeds, need at least 3")
+            print(f"{label}: {len(runs)} seeds, need at least 3")
             continue
         d, x = _deltas(runs, args.horizon)
         if d.shape[1] == 0:
-            print(f"{size} cm phi {phi}: no anchor common to all seeds")
+            print(f"{label}: no anchor common to all seeds")
             continue
         err, dev_in, dev_loo = errors(d)
         base, f_in, f_loo = (
@@ -128,6 +150,8 @@ def main() -> None:
         rec: dict[str, Any] = {
             "size_cm": size,
             "porosity": phi,
+            "F_hold": hold,
+            "F_squeeze": squeeze,
             "seeds": len(runs),
             "anchors": int(d.shape[1]),
             "baseline_g": round(base, 2),
@@ -145,12 +169,12 @@ def main() -> None:
                 else "no water moves"
             )
             print(
-                f"{size:2d} cm phi {phi:.1f}: {rec['seeds']} seeds x {rec['anchors']} anchors  "
+                f"{label}: {rec['seeds']} seeds x {rec['anchors']} anchors  "
                 f"baseline {base:6.2f}  floor_in {f_in:6.2f}  floor_loo {f_loo:6.2f}  {cut}"
             )
     for size, (b, fi, fl) in sorted(per_size.items()):
         print(
-            f"{size:2d} cm, both porosities: baseline {b.mean() * 1e3:6.2f}  "
+            f"{size:2d} cm, all conditions: baseline {b.mean() * 1e3:6.2f}  "
             f"floor_in {fi.mean() * 1e3:6.2f}  floor_loo {fl.mean() * 1e3:6.2f}  "
             f"max_cut {1 - fi.mean() / b.mean():.0%} / {1 - fl.mean() / b.mean():.0%}"
         )

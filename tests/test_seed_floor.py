@@ -55,3 +55,14 @@ def test_deltas_use_anchors_common_to_all_seeds() -> None:
     assert d.shape == (2, len(ks)) and x.shape == (2, len(ks), 15)
     assert d[0] == pytest.approx(np.full(len(ks), -0.4 / 39 * h))
     assert d[1] == pytest.approx(np.full(len(ks), -0.8 / 39 * h))
+
+
+def test_conditions_keep_force_variants_apart() -> None:
+    sf = _module()
+    row = {"size_cm": 8, "porosity": 0.7, "F_hold": 140.0, "F_squeeze": 150.0, "seed": 1}
+    other_squeeze = dict(row, F_squeeze=300.0)
+    other_seed = dict(row, seed=2)
+    # Seeds of one condition share a key; a run with another squeeze force is another
+    # condition (pooling them would compare different command schedules as if chance).
+    assert sf.condition(row) == sf.condition(other_seed) == (8, 0.7, 140.0, 150.0)
+    assert sf.condition(row) != sf.condition(other_squeeze)
