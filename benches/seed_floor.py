@@ -111,8 +111,15 @@ def errors(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def floors(d: np.ndarray) -> tuple[float, float, float]:
     """(baseline, floor_in, floor_loo) in the units of ``d`` (seeds x anchors)."""
-    base, dev_in, dev_loo = errors(d)
-    return float(np.mean(base)), float(np.mean(np.abs(dev_in))), float(np.mean(np.abs(dev_loo)))
+    base, f_in, f_loo = (float(np.mean(e)) for e in _absolute(errors(d)))
+    return base, f_in, f_loo
+
+
+def _absolute(
+    errs: tuple[np.ndarray, np.ndarray, np.ndarray],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    base, dev_in, dev_loo = errs
+    return base, np.abs(dev_in), np.abs(dev_loo)
 
 
 def main() -> None:
@@ -135,17 +142,13 @@ def main() -> None:
         if d.shape[1] == 0:
             print(f"{label}: no anchor common to all seeds")
             continue
-        err, dev_in, dev_loo = errors(d)
-        base, f_in, f_loo = (
-            float(np.mean(v)) * 1e3 for v in (err, np.abs(dev_in), np.abs(dev_loo))
-        )
-        acc = per_size[size]
+        errs = errors(d)
+        absolute = _absolute(errs)
+        base, f_in, f_loo = (float(np.mean(e)) * 1e3 for e in absolute)
         per_size[size] = [
-            np.concatenate([acc[0], err.ravel()]),
-            np.concatenate([acc[1], np.abs(dev_in).ravel()]),
-            np.concatenate([acc[2], np.abs(dev_loo).ravel()]),
+            np.concatenate([a, e.ravel()]) for a, e in zip(per_size[size], absolute, strict=True)
         ]
-        dev_d.append(dev_in.ravel())
+        dev_d.append(errs[1].ravel())
         dev_x.append((x - np.median(x, axis=0)).reshape(-1, x.shape[-1]))
         rec: dict[str, Any] = {
             "size_cm": size,
