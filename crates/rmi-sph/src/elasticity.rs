@@ -165,18 +165,23 @@ pub fn hourglass_force(c: &Ctx, ef: &ElasticFields, s: usize) -> Vector3<f64> {
     f
 }
 
-/// Linear (velocity) part of the hourglass force for velocities `y`.
+/// The operator's elastic row of solid `s`: [`force`] from the linearised `prl` plus the
+/// linear (velocity) part of the hourglass springs for velocities `y`, `dt k (y_r - y_s)`,
+/// in one pass over the rest neighbours. The two sums keep separate accumulators, so the
+/// result has the bits of evaluating them one after the other.
 #[inline(always)]
-pub fn hourglass_linear(c: &Ctx, s: usize, y: &[Vector3<f64>]) -> Vector3<f64> {
+pub fn linear_row(c: &Ctx, s: usize, prl: &[Matrix3<f64>], y: &[Vector3<f64>]) -> Vector3<f64> {
     let nf = c.p.n_fluid;
     let rest = c.rest;
-    let a = nf + s;
-    let mut f = Vector3::zeros();
+    let ya = y[nf + s];
+    let mut f = prl[s] * rest.grad0_sum[s];
+    let mut hg = Vector3::zeros();
     for e in rest.start[s] as usize..rest.start[s + 1] as usize {
         let r = rest.nbr[e] as usize;
-        f += (rest.hg_k[e] * c.dt) * (y[r] - y[a]);
+        f += rest.v0[r - nf] * (prl[r - nf] * rest.grad0[e]);
+        hg += (rest.hg_k[e] * c.dt) * (y[r] - ya);
     }
-    f
+    rest.v0[s] * f + hg
 }
 
 /// Linearised stress term P(eps(y)) R L for velocities `y`: eps = sym(dt sum V0 (y_r - y_s) (x) g)

@@ -244,30 +244,55 @@ impl<'a> Op<'a> {
         f
     }
 
-    /// `A y = m y - dt F_lin(y)`.
-    fn apply(&self, y: &[Vector3<f64>], out: &mut [Vector3<f64>], prl: &mut [Matrix3<f64>]) {
+    /// Row `a` of `A y = m y - dt F_lin(y)`, given the linearised stress `prl` of `y`.
+    #[inline(always)]
+    fn row(&self, a: usize, y: &[Vector3<f64>], prl: &[Matrix3<f64>]) -> Vector3<f64> {
         let c = self.c;
         let nf = c.p.n_fluid;
-        if c.p.n_solid() > 0 {
-            elasticity::linear_prl(c, self.ef, y, prl);
+        let m = c.p.mass[a];
+        if a >= nf && c.rest.fixed[a - nf] {
+            return m * y[a];
         }
+        let mut f = self.pair_forces(a, y);
+        if a >= nf {
+            f += elasticity::linear_row(c, a - nf, prl, y);
+        }
+        m * y[a] - c.dt * f
+    }
+
+    /// Linearised stress of `y` into `prl` (the pass every row of `A y` reads).
+    fn stress_pass(&self, y: &[Vector3<f64>], prl: &mut [Matrix3<f64>]) {
+        if self.c.p.n_solid() > 0 {
+            elasticity::linear_prl(self.c, self.ef, y, prl);
+        }
+    }
+
+    /// `A y = m y - dt F_lin(y)`.
+    fn apply(&self, y: &[Vector3<f64>], out: &mut [Vector3<f64>], prl: &mut [Matrix3<f64>]) {
+        self.stress_pass(y, prl);
         let prl: &[Matrix3<f64>] = prl;
         crate::par::for_each_hot(
             out,
             #[inline(always)]
+            |a, o| *o = self.row(a, y, prl),
+        );
+    }
+
+    /// `out = filter(A y)` and returns `y . out` (the CG step's curvature), in one pass.
+    fn apply_filtered_dot(&self, y: &[Vector3<f64>], out: &mut [Vector3<f64>], prl: &mut [Matrix3<f64>]) -> f64 {
+        self.stress_pass(y, prl);
+        let prl: &[Matrix3<f64>] = prl;
+        let normals = &self.normals;
+        let [yay] = crate::par::for_each_sum(
+            out,
+            #[inline(always)]
             |a, o| {
-                let m = c.p.mass[a];
-                if a >= nf && c.rest.fixed[a - nf] {
-                    *o = m * y[a];
-                    return;
-                }
-                let mut f = self.pair_forces(a, y);
-                if a >= nf {
-                    f += elasticity::force(c, a - nf, prl) + elasticity::hourglass_linear(c, a - nf, y);
-                }
-                *o = m * y[a] - c.dt * f;
+                *o = self.row(a, y, prl);
+                filter_one(o, &normals[a]);
+                [y[a].dot(o)]
             },
         );
+        yay
     }
 
     /// Block-Jacobi preconditioner blocks (inverted).
@@ -336,11 +361,15 @@ fn constraint_field(n: usize, cons: &[VelocityConstraint]) -> Vec<Vector3<f64>> 
 
 /// Removes constrained normal components (the filter of Baraff and Witkin's modified PCG).
 fn filter(x: &mut [Vector3<f64>], normals: &[Vector3<f64>]) {
-    x.par_iter_mut().zip(normals.par_iter()).for_each(|(xi, n)| {
-        if *n != Vector3::zeros() {
-            *xi -= n * n.dot(xi);
-        }
-    });
+    x.par_iter_mut().zip(normals.par_iter()).for_each(|(xi, n)| filter_one(xi, n));
+}
+
+/// [`filter`] of one vector against its normal `n` (zero where unconstrained).
+#[inline(always)]
+fn filter_one(x: &mut Vector3<f64>, n: &Vector3<f64>) {
+    if *n != Vector3::zeros() {
+        *x -= n * n.dot(x);
+    }
 }
 
 /// Solves for v* and writes it into `v`, honouring `constraints` exactly (filtered PCG).
@@ -430,26 +459,61 @@ fn pcg(op: &Op, x: &mut [Vector3<f64>], w: &mut CgWork) -> CgStats {
     w.p.copy_from_slice(&w.z);
     let mut rz = dot(&w.r, &w.z);
     let mut stats = CgStats { iterations: 0, residual: dot(&w.r, &w.r).sqrt() / bnorm };
+    // Each iteration is three parallel passes besides the stress pass: A p with the filter
+    // and p . Ap; the x, r and z updates with r . z and r . r; the new direction. The sums
+    // have the chunking of `par::sum`, so the iterates are those of separate passes, bit for bit.
     while stats.residual > tolerance && stats.iterations < max_iterations {
-        op.apply(&w.p, &mut w.ap, &mut w.prl);
-        filter(&mut w.ap, normals);
-        let pap = dot(&w.p, &w.ap);
+        let pap = op.apply_filtered_dot(&w.p, &mut w.ap, &mut w.prl);
         if pap <= 0.0 || !pap.is_finite() {
             break;
         }
         let alpha = rz / pap;
-        x.par_iter_mut().zip(w.p.par_iter()).for_each(|(xi, pi)| *xi += alpha * pi);
-        w.r.par_iter_mut().zip(w.ap.par_iter()).for_each(|(ri, api)| *ri -= alpha * api);
-        w.z.par_iter_mut().enumerate().for_each(|(a, z)| *z = minv[a] * w.r[a]);
-        filter(&mut w.z, normals);
-        let rz_new = dot(&w.r, &w.z);
+        let [rz_new, rr] = update(x, w, minv, normals, alpha);
         let beta = rz_new / rz;
         rz = rz_new;
         w.p.par_iter_mut().zip(w.z.par_iter()).for_each(|(pi, zi)| *pi = zi + beta * *pi);
         stats.iterations += 1;
-        stats.residual = dot(&w.r, &w.r).sqrt() / bnorm;
+        stats.residual = rr.sqrt() / bnorm;
     }
     stats
+}
+
+/// One CG update: `x += alpha p`, `r -= alpha Ap`, `z = filter(M^-1 r)`; returns `[r . z, r . r]`.
+fn update(
+    x: &mut [Vector3<f64>],
+    w: &mut CgWork,
+    minv: &[Matrix3<f64>],
+    normals: &[Vector3<f64>],
+    alpha: f64,
+) -> [f64; 2] {
+    let (p, ap) = (&w.p, &w.ap);
+    let chunk = par::REDUCE_CHUNK;
+    let partial: Vec<[f64; 2]> = x
+        .par_chunks_mut(chunk)
+        .zip(w.r.par_chunks_mut(chunk))
+        .zip(w.z.par_chunks_mut(chunk))
+        .enumerate()
+        .map(|(ci, ((xc, rc), zc))| {
+            crate::cpu::hot(
+                #[inline(always)]
+                || {
+                    let (mut rz, mut rr) = (0.0, 0.0);
+                    for k in 0..xc.len() {
+                        let a = ci * chunk + k;
+                        xc[k] += alpha * p[a];
+                        rc[k] -= alpha * ap[a];
+                        let mut z = minv[a] * rc[k];
+                        filter_one(&mut z, &normals[a]);
+                        zc[k] = z;
+                        rz += rc[k].dot(&z);
+                        rr += rc[k].dot(&rc[k]);
+                    }
+                    [rz, rr]
+                },
+            )
+        })
+        .collect();
+    [partial.iter().map(|s| s[0]).sum(), partial.iter().map(|s| s[1]).sum()]
 }
 
 /// Implicit response of the coupled system to a velocity increment `dv` (m/s), such as the
