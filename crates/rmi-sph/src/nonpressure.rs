@@ -66,8 +66,9 @@ pub struct Op<'a> {
     rho: Vec<f64>,
     eps_h: f64,
     implicit_visc: bool,
-    /// Per pair (aligned with the neighbour chunks): [Laplacian coefficient / (|x|^2 + eps),
-    /// adhesion coefficient c_is]; the Laplacian one is viscosity (fluid-fluid) or drag.
+    /// Per pair (aligned with the neighbour chunks): [Laplacian coefficient / (|x|^2 + eps)
+    /// times the kernel's gradient factor g(|x|) (1/m^5), adhesion coefficient c_is]; the
+    /// Laplacian one is viscosity (fluid-fluid) or drag.
     coef: Vec<Vec<[f64; 2]>>,
     /// Contact constraints, and per particle the constrained normal (zero where free).
     constraints: &'a [VelocityConstraint],
@@ -178,14 +179,19 @@ impl<'a> Op<'a> {
                 let xa = c.p.x[a];
                 for k in 0..nb.j.len() {
                     let b = nb.j[k] as usize;
-                    let r2 = (xa - c.p.x[b]).norm_squared() + this.eps_h;
+                    let d = (xa - c.p.x[b]).norm_squared();
+                    let r2 = d + this.eps_h;
+                    // grad W = g(|x|) x: the pair term lap (y_ab . x_ab) grad W is stored as
+                    // lap g (y_ab . x_ab) x_ab, so the CG passes need no gradient per pair.
+                    let gf = c.kernel.grad_factor(d.sqrt());
                     out[start + k] = match (a < c.p.n_fluid, k < nb.n_fluid) {
                         (true, true) if this.implicit_visc => {
                             let mu = this.s.viscosity * c.rho0_f;
-                            [(c.p.mass[a] / this.rho[a]) * (c.p.mass[b] / this.rho[b]) * LAPLACE_D * mu / r2, 0.0]
+                            let lap = (c.p.mass[a] / this.rho[a]) * (c.p.mass[b] / this.rho[b]) * LAPLACE_D * mu / r2;
+                            [lap * gf, 0.0]
                         }
-                        (true, false) => [this.drag(a, b) / r2, this.adhesion(a, b, nb.w[k])],
-                        (false, true) => [this.drag(b, a) / r2, this.adhesion(b, a, nb.w[k])],
+                        (true, false) => [this.drag(a, b) / r2 * gf, this.adhesion(a, b, nb.w[k])],
+                        (false, true) => [this.drag(b, a) / r2 * gf, this.adhesion(b, a, nb.w[k])],
                         _ => [0.0, 0.0],
                     };
                 }
@@ -214,8 +220,9 @@ impl<'a> Op<'a> {
         for k in self.coupled(a, &nb) {
             let b = nb.j[k] as usize;
             let yab = ya - y[b];
-            let [lap, adh] = cf[k];
-            f += (lap * yab.dot(&(xa - c.p.x[b]))) * nb.g[k];
+            let [lap_g, adh] = cf[k];
+            let xab = xa - c.p.x[b];
+            f += (lap_g * yab.dot(&xab)) * xab;
             if adh != 0.0 {
                 f -= (dt * adh) * yab;
             }
@@ -314,7 +321,8 @@ impl<'a> Op<'a> {
             let mut jac = Matrix3::zeros();
             for k in self.coupled(a, &nb) {
                 let [lap, adh] = cf[k];
-                jac += lap * nb.g[k] * (xa - c.p.x[nb.j[k] as usize]).transpose();
+                let xab = xa - c.p.x[nb.j[k] as usize];
+                jac += lap * xab * xab.transpose();
                 jac -= Matrix3::from_diagonal_element(dt * adh);
             }
             let mut block = Matrix3::from_diagonal_element(m) - dt * jac;
