@@ -49,9 +49,44 @@ pub struct PressureWork {
     err: Vec<f64>,
 }
 
+/// The volume factors of physics.md sec. 1 that the pressure passes need, per particle, so
+/// that the pair loops read one number instead of walking particle -> object -> material
+/// (the values are those of [`Ctx::volume_factor`], bit for bit).
+struct Factors {
+    /// For a skeleton particle b: `f(water <- b) = 1 - phi_b`.
+    from_solid: Vec<f64>,
+    /// For a skeleton particle a: `f(a <- b)` for b of a's own material.
+    same: Vec<f64>,
+}
+
+impl Factors {
+    fn new(c: &Ctx) -> Self {
+        let n = c.p.len();
+        let nf = c.p.n_fluid;
+        let mut from_solid = vec![0.0; n];
+        let mut same = vec![0.0; n];
+        for a in nf..n {
+            // The expressions of `Ctx::volume_factor`'s water <- skeleton and same-material arms.
+            from_solid[a] = 1.0 - c.object(a).material.porosity;
+            same[a] = c.volume_factor(a, a);
+        }
+        Factors { from_solid, same }
+    }
+
+    /// `f(a <- b)` for skeleton particles a and b.
+    #[inline(always)]
+    fn solid_pair(&self, c: &Ctx, a: usize, b: usize) -> f64 {
+        if c.p.material[a] == c.p.material[b] {
+            self.same[a]
+        } else {
+            1.0
+        }
+    }
+}
+
 /// Pressure acceleration of particle `a` for the current kappa.
 #[inline(always)]
-fn accel(c: &Ctx, a: usize, kappa: &[f64], rho0: &[f64], gb: &[Vector3<f64>]) -> Vector3<f64> {
+fn accel(c: &Ctx, fs: &Factors, a: usize, kappa: &[f64], rho0: &[f64], gb: &[Vector3<f64>]) -> Vector3<f64> {
     let nb = c.nb.of(a);
     let ka = kappa[a];
     let v = c.vol;
@@ -62,16 +97,19 @@ fn accel(c: &Ctx, a: usize, kappa: &[f64], rho0: &[f64], gb: &[Vector3<f64>]) ->
         }
         for k in nb.n_fluid..nb.j.len() {
             let b = nb.j[k] as usize;
-            acc -= (c.volume_factor(a, b) * v * ka) * nb.g[k];
+            acc -= (fs.from_solid[b] * v * ka) * nb.g[k];
         }
     } else {
+        let r0a = rho0[a];
         for k in nb.n_fluid..nb.j.len() {
             let b = nb.j[k] as usize;
             // One symmetric factor: the reference's extra f(b <- a) on kappa_b makes the pair
             // forces of a compressible skeleton unequal (net force V^2 f (1 - f) grad W
             // (rho0 kappa_b - rho0 kappa_a)), which pushed resting sponges into the floor.
-            let f_ab = c.volume_factor(a, b);
-            acc -= (f_ab * v * (ka + rho0[b] / rho0[a] * kappa[b])) * nb.g[k];
+            let f_ab = fs.solid_pair(c, a, b);
+            // x / x is exactly 1: skip the division within one material.
+            let ratio = if rho0[b] == r0a { 1.0 } else { rho0[b] / r0a };
+            acc -= (f_ab * v * (ka + ratio * kappa[b])) * nb.g[k];
         }
     }
     acc - ka * gb[a]
@@ -79,7 +117,7 @@ fn accel(c: &Ctx, a: usize, kappa: &[f64], rho0: &[f64], gb: &[Vector3<f64>]) ->
 
 /// Divergence-like sum `sum_b f V (q_a - q_b) . grad W_ab` over dynamic neighbours.
 #[inline(always)]
-fn div(c: &Ctx, a: usize, q: &[Vector3<f64>]) -> f64 {
+fn div(c: &Ctx, fs: &Factors, a: usize, q: &[Vector3<f64>]) -> f64 {
     let nb = c.nb.of(a);
     let v = c.vol;
     let qa = q[a];
@@ -90,12 +128,12 @@ fn div(c: &Ctx, a: usize, q: &[Vector3<f64>]) -> f64 {
         }
         for k in nb.n_fluid..nb.j.len() {
             let b = nb.j[k] as usize;
-            s += c.volume_factor(a, b) * v * (qa - q[b]).dot(&nb.g[k]);
+            s += fs.from_solid[b] * v * (qa - q[b]).dot(&nb.g[k]);
         }
     } else {
         for k in nb.n_fluid..nb.j.len() {
             let b = nb.j[k] as usize;
-            s += c.volume_factor(a, b) * v * (qa - q[b]).dot(&nb.g[k]);
+            s += fs.solid_pair(c, a, b) * v * (qa - q[b]).dot(&nb.g[k]);
         }
     }
     s
@@ -147,12 +185,13 @@ pub fn solve(
     });
     work.ap.resize(n, Vector3::zeros());
     work.err.resize(n, 0.0);
+    let fs = &Factors::new(c);
     kappa.resize(n, 0.0);
     {
         let vv: &[Vector3<f64>] = v;
         let source = &mut work.source;
         source.par_iter_mut().zip(kappa.par_iter_mut()).enumerate().for_each(|(a, (s, ka))| {
-            let rho_adv = dens.rho_ratio[a] + dt * (div(c, a, vv) + boundary_div(c, a, &vv[a]));
+            let rho_adv = dens.rho_ratio[a] + dt * (div(c, fs, a, vv) + boundary_div(c, a, &vv[a]));
             *s = 1.0 - rho_adv;
             *ka = if settings.warm_start && rho_adv > 1.0 {
                 settings.warm_start_factor * kappa_dt2[a].min(2.5e-4) / dt2
@@ -172,7 +211,7 @@ pub fn solve(
             par::for_each_hot(
                 &mut work.ap,
                 #[inline(always)]
-                |a, ap| *ap = accel(c, a, kap, rho0, gb),
+                |a, ap| *ap = accel(c, fs, a, kap, rho0, gb),
             );
         }
         {
@@ -184,7 +223,7 @@ pub fn solve(
                 &mut work.err,
                 #[inline(always)]
                 |a, ka, e| {
-                    let akappa = dt2 * (div(c, a, ap) + ap[a].dot(&gb[a]));
+                    let akappa = dt2 * (div(c, fs, a, ap) + ap[a].dot(&gb[a]));
                     let residual = source[a] - akappa;
                     *e = (-residual).max(0.0);
                     let alpha = dens.alpha[a];
@@ -213,7 +252,7 @@ pub fn solve(
         par::for_each_hot(
             &mut work.ap,
             #[inline(always)]
-            |a, ap| *ap = accel(c, a, kap, rho0, gb),
+            |a, ap| *ap = accel(c, fs, a, kap, rho0, gb),
         );
     }
     v.par_iter_mut().zip(work.ap.par_iter()).for_each(|(vi, ap)| *vi += dt * ap);
