@@ -554,8 +554,8 @@ impl Simulation {
     pub fn memory_bytes(&self) -> usize {
         let n = self.p.len();
         let per_particle = 24 * 2 + 8 + 2 + 4 + 8 * 6 + 24 * 2 + 24 * 6 + 8 * 4;
-        // Per rest pair: neighbour index, rest gradient, hourglass constant, cached strain weight.
-        let solid = self.rest.nbr.len() * (4 + 24 + 8 + 24) + self.p.n_solid() * (24 + 8 * 2 + 72 * 3 + 32 + 24 + 16);
+        // Per rest pair: neighbour index, rest gradient, hourglass constant.
+        let solid = self.rest.nbr.len() * (4 + 24 + 8) + self.p.n_solid() * (24 + 8 * 2 + 72 * 3 + 32 + 24 + 16);
         n * per_particle + self.nb.bytes() + self.nbb.bytes() + solid + self.bnd.x.len() * (24 * 3 + 8 + 2)
     }
 
