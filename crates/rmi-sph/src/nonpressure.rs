@@ -47,7 +47,6 @@ pub struct CgStats {
 #[derive(Clone, Debug, Default)]
 pub struct CgWork {
     r: Vec<Vector3<f64>>,
-    z: Vec<Vector3<f64>>,
     p: Vec<Vector3<f64>>,
     ap: Vec<Vector3<f64>>,
     b: Vec<Vector3<f64>>,
@@ -183,15 +182,15 @@ impl<'a> Op<'a> {
                     let r2 = d + this.eps_h;
                     // grad W = g(|x|) x: the pair term lap (y_ab . x_ab) grad W is stored as
                     // lap g (y_ab . x_ab) x_ab, so the CG passes need no gradient per pair.
-                    let gf = c.kernel.grad_factor(d.sqrt());
+                    let gf = || c.kernel.grad_factor(d.sqrt());
                     out[start + k] = match (a < c.p.n_fluid, k < nb.n_fluid) {
                         (true, true) if this.implicit_visc => {
                             let mu = this.s.viscosity * c.rho0_f;
                             let lap = (c.p.mass[a] / this.rho[a]) * (c.p.mass[b] / this.rho[b]) * LAPLACE_D * mu / r2;
-                            [lap * gf, 0.0]
+                            [lap * gf(), 0.0]
                         }
-                        (true, false) => [this.drag(a, b) / r2 * gf, this.adhesion(a, b, nb.w[k])],
-                        (false, true) => [this.drag(b, a) / r2 * gf, this.adhesion(b, a, nb.w[k])],
+                        (true, false) => [this.drag(a, b) / r2 * gf(), this.adhesion(a, b, nb.w[k])],
+                        (false, true) => [this.drag(b, a) / r2 * gf(), this.adhesion(b, a, nb.w[k])],
                         _ => [0.0, 0.0],
                     };
                 }
@@ -320,9 +319,9 @@ impl<'a> Op<'a> {
             // d(F_lin)/d(y_a): pair terms coef * grad W x^T and -dt c I.
             let mut jac = Matrix3::zeros();
             for k in self.coupled(a, &nb) {
-                let [lap, adh] = cf[k];
+                let [lap_g, adh] = cf[k];
                 let xab = xa - c.p.x[nb.j[k] as usize];
-                jac += lap * xab * xab.transpose();
+                jac += lap_g * xab * xab.transpose();
                 jac -= Matrix3::from_diagonal_element(dt * adh);
             }
             let mut block = Matrix3::from_diagonal_element(m) - dt * jac;
@@ -372,6 +371,14 @@ fn filter(x: &mut [Vector3<f64>], normals: &[Vector3<f64>]) {
     x.par_iter_mut().zip(normals.par_iter()).for_each(|(xi, n)| filter_one(xi, n));
 }
 
+/// The preconditioned residual of particle `a`: `filter(M^-1 r)`.
+#[inline(always)]
+fn precondition(minv: &[Matrix3<f64>], normals: &[Vector3<f64>], a: usize, r: &Vector3<f64>) -> Vector3<f64> {
+    let mut z = minv[a] * r;
+    filter_one(&mut z, &normals[a]);
+    z
+}
+
 /// [`filter`] of one vector against its normal `n` (zero where unconstrained).
 #[inline(always)]
 fn filter_one(x: &mut Vector3<f64>, n: &Vector3<f64>) {
@@ -396,7 +403,7 @@ pub fn solve(
     let (c, ef, s, constraints) = (op.c, op.ef, op.s, op.constraints);
     let n = c.p.len();
     let nf = c.p.n_fluid;
-    for buf in [&mut w.r, &mut w.z, &mut w.p, &mut w.ap, &mut w.b] {
+    for buf in [&mut w.r, &mut w.p, &mut w.ap, &mut w.b] {
         buf.resize(n, Vector3::zeros());
     }
     w.prl.resize(c.p.n_solid(), Matrix3::zeros());
@@ -462,66 +469,41 @@ fn pcg(op: &Op, x: &mut [Vector3<f64>], w: &mut CgWork) -> CgStats {
     filter(&mut bf, normals);
     let bnorm = dot(&bf, &bf).sqrt().max(1e-300);
     let minv = &op.minv;
-    w.z.par_iter_mut().enumerate().for_each(|(a, z)| *z = minv[a] * w.r[a]);
-    filter(&mut w.z, normals);
-    w.p.copy_from_slice(&w.z);
-    let mut rz = dot(&w.r, &w.z);
+    w.p.par_iter_mut().enumerate().for_each(|(a, p)| *p = precondition(minv, normals, a, &w.r[a]));
+    let mut rz = dot(&w.r, &w.p);
     let mut stats = CgStats { iterations: 0, residual: dot(&w.r, &w.r).sqrt() / bnorm };
     // Each iteration is three parallel passes besides the stress pass: A p with the filter
-    // and p . Ap; the x, r and z updates with r . z and r . r; the new direction. The sums
-    // have the chunking of `par::sum`, so the iterates are those of separate passes, bit for bit.
+    // and p . Ap; the r update with r . z and r . r; x and the new direction. The sums have
+    // the chunking of `par::sum`, so the iterates are those of separate passes, bit for bit.
     while stats.residual > tolerance && stats.iterations < max_iterations {
         let pap = op.apply_filtered_dot(&w.p, &mut w.ap, &mut w.prl);
         if pap <= 0.0 || !pap.is_finite() {
             break;
         }
         let alpha = rz / pap;
-        let [rz_new, rr] = update(x, w, minv, normals, alpha);
+        let ap = &w.ap;
+        let [rz_new, rr] = par::for_each_sum(
+            &mut w.r,
+            #[inline(always)]
+            |a, r| {
+                *r -= alpha * ap[a];
+                let z = precondition(minv, normals, a, r);
+                [r.dot(&z), r.dot(r)]
+            },
+        );
         let beta = rz_new / rz;
         rz = rz_new;
-        w.p.par_iter_mut().zip(w.z.par_iter()).for_each(|(pi, zi)| *pi = zi + beta * *pi);
+        // z is rebuilt from r here rather than stored by the pass above (one 3x3 product per
+        // particle, the same bits), so that pass updates one array and shares `par`'s sums.
+        let r = &w.r;
+        x.par_iter_mut().zip(w.p.par_iter_mut()).enumerate().for_each(|(a, (xi, pi))| {
+            *xi += alpha * *pi;
+            *pi = precondition(minv, normals, a, &r[a]) + beta * *pi;
+        });
         stats.iterations += 1;
         stats.residual = rr.sqrt() / bnorm;
     }
     stats
-}
-
-/// One CG update: `x += alpha p`, `r -= alpha Ap`, `z = filter(M^-1 r)`; returns `[r . z, r . r]`.
-fn update(
-    x: &mut [Vector3<f64>],
-    w: &mut CgWork,
-    minv: &[Matrix3<f64>],
-    normals: &[Vector3<f64>],
-    alpha: f64,
-) -> [f64; 2] {
-    let (p, ap) = (&w.p, &w.ap);
-    let chunk = par::REDUCE_CHUNK;
-    let partial: Vec<[f64; 2]> = x
-        .par_chunks_mut(chunk)
-        .zip(w.r.par_chunks_mut(chunk))
-        .zip(w.z.par_chunks_mut(chunk))
-        .enumerate()
-        .map(|(ci, ((xc, rc), zc))| {
-            crate::cpu::hot(
-                #[inline(always)]
-                || {
-                    let (mut rz, mut rr) = (0.0, 0.0);
-                    for k in 0..xc.len() {
-                        let a = ci * chunk + k;
-                        xc[k] += alpha * p[a];
-                        rc[k] -= alpha * ap[a];
-                        let mut z = minv[a] * rc[k];
-                        filter_one(&mut z, &normals[a]);
-                        zc[k] = z;
-                        rz += rc[k].dot(&z);
-                        rr += rc[k].dot(&rc[k]);
-                    }
-                    [rz, rr]
-                },
-            )
-        })
-        .collect();
-    [partial.iter().map(|s| s[0]).sum(), partial.iter().map(|s| s[1]).sum()]
 }
 
 /// Implicit response of the coupled system to a velocity increment `dv` (m/s), such as the
