@@ -25,6 +25,12 @@ pub enum Preconditioner {
     /// Exact 3x3 diagonal blocks of the viscosity, drag and adhesion terms plus the dominant
     /// neighbour term of elasticity.
     BlockJacobi,
+    /// Block Jacobi plus a coarse correction on aggregates of `coarse_cell` spacings (the
+    /// translations of each aggregate; see `coarse`): far fewer iterations for a stiff skeleton.
+    TwoLevel,
+    /// `two_level` for a skeleton of at least `nonpressure::TWO_LEVEL_MIN_SOLIDS` (4,000) free
+    /// particles, where its set-up per step pays for itself; `block_jacobi` below.
+    Auto,
 }
 
 /// Water (the liquid phase).
@@ -248,11 +254,19 @@ pub struct CgConfig {
     pub preconditioner: Preconditioner,
     /// Start from the previous step's velocity change.
     pub warm_start: bool,
+    /// Edge length of the two-level preconditioner's aggregates, in particle spacings.
+    pub coarse_cell: f64,
 }
 
 impl Default for CgConfig {
     fn default() -> Self {
-        CgConfig { tolerance: 1e-4, max_iterations: 100, preconditioner: Preconditioner::BlockJacobi, warm_start: true }
+        CgConfig {
+            tolerance: 1e-4,
+            max_iterations: 100,
+            preconditioner: Preconditioner::Auto,
+            warm_start: true,
+            coarse_cell: 4.0,
+        }
     }
 }
 
@@ -425,6 +439,7 @@ impl SimConfig {
         if self.cg.max_iterations == 0 || self.cg.max_iterations > 10_000 {
             return Err(RmiError::config("cg.max_iterations", self.cg.max_iterations, "an integer in [1, 10000]"));
         }
+        range("cg.coarse_cell", self.cg.coarse_cell, 1.0, 64.0, "particle spacings")?;
         range("max_velocity", self.max_velocity, 1e-3, 1e4, "m/s")?;
         let d = self.spacing();
         for (i, b) in self.scene.fluid_blocks.iter().enumerate() {

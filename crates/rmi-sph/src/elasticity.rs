@@ -245,3 +245,29 @@ pub fn diagonal_block(c: &Ctx, ef: &ElasticFields, s: usize) -> Matrix3<f64> {
     let ksum: f64 = (rest.start[s] as usize..rest.start[s + 1] as usize).map(|e| rest.hg_k[e]).sum();
     d + Matrix3::from_diagonal_element(ksum)
 }
+
+/// The two-level preconditioner's coarse unit translations seen by the linearised stress of
+/// [`linear_prl`]: the velocity field `e_k` on aggregate J's particles (zero elsewhere) gives
+/// solid s the displacement gradient `dt e_k (x) h_sJ` with
+/// `h_sJ = R_s L_s (sum_{r in J} V_r0 grad W0_sr - [s in J] sum_r V_r0 grad W0_sr)`.
+/// Returns `h_sJ` per solid and aggregate (`agg`: each dynamic particle's aggregate).
+pub fn coarse_strain(c: &Ctx, ef: &ElasticFields, agg: &[u32]) -> crate::coarse::BlockRows<Vector3<f64>> {
+    let nf = c.p.n_fluid;
+    let rest = c.rest;
+    crate::coarse::BlockRows::build(c.p.n_solid(), |s, b| {
+        for e in rest.start[s] as usize..rest.start[s + 1] as usize {
+            let r = rest.nbr[e] as usize;
+            b.add(agg[r], rest.v0[r - nf] * rest.grad0[e]);
+        }
+        b.add(agg[nf + s], -rest.grad0_sum[s]);
+        b.map(|g| ef.rl[s] * g);
+    })
+}
+
+/// The 3x3 block `[P_x R L v, P_y R L v, P_z R L v]` of the stress term `P(eps) R L` applied
+/// to `v` for the coarse displacement gradients `dt e_k (x) h` of [`coarse_strain`], with
+/// moduli (mu, lam) and `w = R L v`: `dt (mu (h . w) I + mu h w^T + lam w h^T)`.
+#[inline(always)]
+pub fn coarse_stress_times(h: &Vector3<f64>, w: &Vector3<f64>, (mu, lam): (f64, f64), dt: f64) -> Matrix3<f64> {
+    dt * (Matrix3::from_diagonal_element(mu * h.dot(w)) + mu * h * w.transpose() + lam * w * h.transpose())
+}

@@ -9,7 +9,8 @@
 //!   `V = (2 r)^3`; neighbour lists with cached `W` and `grad W`, built once per step;
 //! - porosity-aware densities, DFSPH factor, local porosity, saturation (Shepard-corrected);
 //! - one strongly coupled implicit CG over all velocities (viscosity, corotated elasticity,
-//!   drag from a permeability, capillary adhesion) with block-Jacobi preconditioning;
+//!   drag from a permeability, capillary adhesion), preconditioned by block Jacobi plus a
+//!   coarse level on aggregates of particles (two-level deflation, [`coarse`]);
 //! - porosity-aware relaxed-Jacobi pressure solve with per-material tolerances;
 //! - compressible skeleton, static and kinematic rigid bodies with force read-back;
 //! - validated configs, divergence guard, bit-identical snapshots, thread-count-independent
@@ -29,6 +30,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod boundary;
+pub mod coarse;
 pub mod config;
 pub mod contact;
 pub mod controller;
@@ -52,6 +54,7 @@ pub mod pressure;
 pub mod retention;
 pub mod scene;
 pub mod simulation;
+pub mod skyline;
 pub mod snapshot;
 pub mod trial;
 

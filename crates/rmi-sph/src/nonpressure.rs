@@ -6,6 +6,7 @@
 //! elasticity, and `F_exp` holds elasticity at x^n, the position part of adhesion, buoyancy
 //! and the boundary-velocity part of boundary viscosity.
 
+use crate::coarse::{Aggregates, BlockRows, RowBuilder, TwoLevel};
 use crate::config::{Preconditioner, ViscosityMode};
 use crate::ctx::Ctx;
 use crate::density::{DensityFields, MIN_LOCAL_POROSITY};
@@ -14,6 +15,14 @@ use crate::par;
 use crate::particles::LAPLACE_D;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
+
+/// Free skeleton particles from which [`Preconditioner::Auto`] uses the two-level
+/// preconditioner. Building `A Z` costs about as much as ten CG iterations per step (two
+/// microseconds per particle), which pays where block Jacobi needs many iterations: a fine
+/// skeleton (16,000 particles at r = 2.5 mm: 0.76-0.84x the step time) but not the medium
+/// sponge at r = 5 mm (2,000), which drains 17 % slower with it once the pore water rests
+/// (benches/RESULTS.md).
+pub const TWO_LEVEL_MIN_SOLIDS: usize = 4000;
 
 /// Settings resolved from the config.
 #[derive(Clone, Copy, Debug)]
@@ -32,6 +41,8 @@ pub struct NonPressureSettings {
     pub preconditioner: Preconditioner,
     /// Warm start from the previous velocity change.
     pub warm_start: bool,
+    /// Aggregate edge length of the two-level preconditioner (m).
+    pub coarse_cell: f64,
 }
 
 /// What one CG solve did.
@@ -50,6 +61,8 @@ pub struct CgWork {
     p: Vec<Vector3<f64>>,
     ap: Vec<Vector3<f64>>,
     b: Vec<Vector3<f64>>,
+    /// Block-Jacobi step of the residual, then the two-level preconditioned residual.
+    y: Vec<Vector3<f64>>,
     prl: Vec<Matrix3<f64>>,
 }
 
@@ -74,6 +87,8 @@ pub struct Op<'a> {
     normals: Vec<Vector3<f64>>,
     /// Inverted preconditioner blocks.
     minv: Vec<Matrix3<f64>>,
+    /// Coarse level of the two-level preconditioner.
+    coarse: Option<TwoLevel>,
 }
 
 impl<'a> Op<'a> {
@@ -128,10 +143,97 @@ impl<'a> Op<'a> {
             constraints,
             normals: constraint_field(c.p.len(), constraints),
             minv: Vec::new(),
+            coarse: None,
         };
         op.fill_coefficients();
         op.minv = op.preconditioner();
+        let two_level = match s.preconditioner {
+            Preconditioner::TwoLevel => true,
+            Preconditioner::Auto => c.rest.fixed.iter().filter(|f| !**f).count() >= TWO_LEVEL_MIN_SOLIDS,
+            _ => false,
+        };
+        if two_level {
+            op.coarse = op.coarse_level();
+        }
         op
+    }
+
+    /// The constraint filter `S_a = I - n n^T` of particle `a` (identity where free).
+    #[inline(always)]
+    fn filter_matrix(&self, a: usize) -> Matrix3<f64> {
+        let n = self.normals[a];
+        Matrix3::identity() - n * n.transpose()
+    }
+
+    /// Aggregates, the rows of `A Z` and the factored coarse matrix (None without aggregates).
+    /// Pinned and constrained particles stay out of the aggregates: the coarse space then lies
+    /// in the constraints' admissible set without a filter on its columns.
+    fn coarse_level(&self) -> Option<TwoLevel> {
+        let c = self.c;
+        let nf = c.p.n_fluid;
+        let free = |a: usize| (a < nf || !c.rest.fixed[a - nf]) && self.normals[a] == Vector3::zeros();
+        let agg = Aggregates::build(&c.p.x, self.s.coarse_cell, free);
+        if agg.is_empty() {
+            return None;
+        }
+        let strain = elasticity::coarse_strain(c, self.ef, &agg.of);
+        let az = BlockRows::build(c.p.len(), |a, row| self.coarse_row(a, &agg.of, &strain, row));
+        Some(TwoLevel::new(agg, az))
+    }
+
+    /// Row `a` of `S A Z`: the operator of [`Op::row`] applied to the coarse unit translations
+    /// (`e_k` on every particle of an aggregate), term by term: mass, pair terms, wall
+    /// viscosity, elasticity and its hourglass springs; filtered when `a` is constrained.
+    fn coarse_row(&self, a: usize, agg: &[u32], strain: &BlockRows<Vector3<f64>>, row: &mut RowBuilder) {
+        let c = self.c;
+        let nf = c.p.n_fluid;
+        let dt = c.dt;
+        if a >= nf && c.rest.fixed[a - nf] {
+            return;
+        }
+        // Terms on a's own translation are summed apart and added once.
+        let mut own = Matrix3::from_diagonal_element(c.p.mass[a]);
+        // Pair terms f_a = K_ab (u_a - u_b), K = lap g x x^T - dt c I.
+        let nb = c.nb.of(a);
+        let cf = self.coefs(a);
+        let xa = c.p.x[a];
+        for k in self.coupled(a, &nb) {
+            let b = nb.j[k] as usize;
+            let [lap_g, adh] = cf[k];
+            let xab = xa - c.p.x[b];
+            let kab = lap_g * xab * xab.transpose() - Matrix3::from_diagonal_element(dt * adh);
+            own -= dt * kab;
+            row.add(agg[b], dt * kab);
+        }
+        if c.p.is_fluid(a) && self.implicit_visc && self.s.boundary_viscosity > 0.0 {
+            self.boundary_visc_terms(a, |_, coef, xak, g| own -= (dt * coef) * g * xak.transpose());
+        }
+        if a >= nf {
+            let s = a - nf;
+            let rest = c.rest;
+            let ef = self.ef;
+            let vs = rest.v0[s];
+            let w = ef.rl[s] * rest.grad0_sum[s];
+            for (j, h) in strain.row(s) {
+                row.add(j, (-dt * vs) * elasticity::coarse_stress_times(h, &w, ef.moduli[s], dt));
+            }
+            for e in rest.start[s] as usize..rest.start[s + 1] as usize {
+                let r = rest.nbr[e] as usize - nf;
+                let scale = -dt * vs * rest.v0[r];
+                let w = ef.rl[r] * rest.grad0[e];
+                for (j, h) in strain.row(r) {
+                    row.add(j, scale * elasticity::coarse_stress_times(h, &w, ef.moduli[r], dt));
+                }
+                let hk = dt * dt * rest.hg_k[e];
+                own += Matrix3::from_diagonal_element(hk);
+                row.add(agg[nf + r], Matrix3::from_diagonal_element(-hk));
+            }
+        }
+        row.add(agg[a], own);
+        if self.normals[a] != Vector3::zeros() {
+            let sa = self.filter_matrix(a);
+            row.map(|m| sa * m);
+        }
     }
 
     /// Pairs of `a` that carry implicit terms: for water, its skeleton neighbours (and its
@@ -234,20 +336,29 @@ impl<'a> Op<'a> {
 
     /// Boundary viscosity with the fluid velocity `q` (matrix part) or the wall velocity (rhs part).
     fn boundary_visc(&self, a: usize, q: Vector3<f64>, rhs: bool) -> Vector3<f64> {
+        let mut f = Vector3::zeros();
+        self.boundary_visc_terms(a, |k, coef, xak, g| {
+            let vel = if rhs { -self.c.bnd.v[k] } else { q };
+            f += (coef * vel.dot(xak)) * g;
+        });
+        f
+    }
+
+    /// Calls `term(k, coef, x_ak, grad W_ak)` for each wall neighbour k of fluid `a`: boundary
+    /// viscosity is `sum coef ((v_a - v_k) . x_ak) grad W_ak`.
+    #[inline(always)]
+    fn boundary_visc_terms(&self, a: usize, mut term: impl FnMut(usize, f64, &Vector3<f64>, &Vector3<f64>)) {
         let c = self.c;
         let nbb = c.nbb.of(a);
         let mub = self.s.boundary_viscosity * c.rho0_f;
         let va = c.p.mass[a] / self.rho[a];
-        let mut f = Vector3::zeros();
         for k in 0..nbb.j.len() {
             let kk = nbb.j[k] as usize;
             let xak = c.p.x[a] - c.bnd.x[kk];
-            let vel = if rhs { -c.bnd.v[kk] } else { q };
             let coef =
                 va * LAPLACE_D * mub * (c.rho0_f * c.bnd.volume[kk] / self.rho[a]) / (xak.norm_squared() + self.eps_h);
-            f += (coef * vel.dot(&xak)) * nbb.g[k];
+            term(kk, coef, &xak, &nbb.g[k]);
         }
-        f
     }
 
     /// Row `a` of `A y = m y - dt F_lin(y)`, given the linearised stress `prl` of `y`.
@@ -460,21 +571,57 @@ pub fn solve(
 
 /// Preconditioned CG on `A x = w.b` from the guess in `x`, with the constrained rows' normal
 /// components held fixed; the tolerance is relative to the filtered right-hand side.
+///
+/// The preconditioner is block Jacobi `y = M^-1 r`, plus, when the operator has a coarse
+/// level ([`crate::coarse`], A-DEF2), the coarse correction `z = y + Z E^-1 (Z^T r - (A Z)^T y)`;
+/// the guess is then first corrected on the coarse space, so that the residual is orthogonal
+/// to it. Each iteration is three parallel passes besides the stress pass (A p with the
+/// filter and p . Ap; the r update with y, r . r and r . y; x and the new direction), and the
+/// coarse pass with r . z. The sums have the chunking of `par::sum`, so the iterates do not
+/// depend on how the passes are fused.
 fn pcg(op: &Op, x: &mut [Vector3<f64>], w: &mut CgWork) -> CgStats {
     let (normals, tolerance, max_iterations) = (&op.normals, op.s.tolerance, op.s.max_iterations);
+    let minv = &op.minv;
+    w.y.resize(x.len(), Vector3::zeros());
     op.apply(x, &mut w.ap, &mut w.prl);
     w.r.par_iter_mut().enumerate().for_each(|(a, r)| *r = w.b[a] - w.ap[a]);
     filter(&mut w.r, normals);
     let mut bf = w.b.clone();
     filter(&mut bf, normals);
     let bnorm = dot(&bf, &bf).sqrt().max(1e-300);
-    let minv = &op.minv;
-    w.p.par_iter_mut().enumerate().for_each(|(a, p)| *p = precondition(minv, normals, a, &w.r[a]));
-    let mut rz = dot(&w.r, &w.p);
-    let mut stats = CgStats { iterations: 0, residual: dot(&w.r, &w.r).sqrt() / bnorm };
-    // Each iteration is three parallel passes besides the stress pass: A p with the filter
-    // and p . Ap; the r update with r . z and r . r; x and the new direction. The sums have
-    // the chunking of `par::sum`, so the iterates are those of separate passes, bit for bit.
+    if let Some(tl) = &op.coarse {
+        // x += Z c, r -= A Z c with c = E^-1 Z^T r (the rows of A Z are filtered already).
+        let c0 = tl.coarse_correction(&w.r, None);
+        x.par_iter_mut().enumerate().for_each(|(a, xa)| *xa += tl.prolong(a, &c0));
+        tl.subtract_az(&c0, &mut w.r);
+    }
+    // Given y = M^-1 r and r . y: adds the coarse correction to y (Z is zero on constrained
+    // particles, so it needs no filter of its own) and returns r . z.
+    let coarse = |r: &[Vector3<f64>], y: &mut [Vector3<f64>], ry: f64| -> f64 {
+        let Some(tl) = &op.coarse else { return ry };
+        let c = tl.coarse_correction(r, Some(y));
+        let [rz] = par::for_each_sum(
+            y,
+            #[inline(always)]
+            |a, ya| {
+                *ya += tl.prolong(a, &c);
+                [r[a].dot(ya)]
+            },
+        );
+        rz
+    };
+    let r = &w.r;
+    let [ry, rr] = par::for_each_sum(
+        &mut w.y,
+        #[inline(always)]
+        |a, y| {
+            *y = precondition(minv, normals, a, &r[a]);
+            [r[a].dot(y), r[a].dot(&r[a])]
+        },
+    );
+    let mut rz = coarse(&w.r, &mut w.y, ry);
+    w.p.copy_from_slice(&w.y);
+    let mut stats = CgStats { iterations: 0, residual: rr.sqrt() / bnorm };
     while stats.residual > tolerance && stats.iterations < max_iterations {
         let pap = op.apply_filtered_dot(&w.p, &mut w.ap, &mut w.prl);
         if pap <= 0.0 || !pap.is_finite() {
@@ -482,23 +629,23 @@ fn pcg(op: &Op, x: &mut [Vector3<f64>], w: &mut CgWork) -> CgStats {
         }
         let alpha = rz / pap;
         let ap = &w.ap;
-        let [rz_new, rr] = par::for_each_sum(
+        let [ry, rr] = par::for_each2_sum(
             &mut w.r,
+            &mut w.y,
             #[inline(always)]
-            |a, r| {
+            |a, r, y| {
                 *r -= alpha * ap[a];
-                let z = precondition(minv, normals, a, r);
-                [r.dot(&z), r.dot(r)]
+                *y = precondition(minv, normals, a, r);
+                [r.dot(y), r.dot(r)]
             },
         );
+        let rz_new = coarse(&w.r, &mut w.y, ry);
         let beta = rz_new / rz;
         rz = rz_new;
-        // z is rebuilt from r here rather than stored by the pass above (one 3x3 product per
-        // particle, the same bits), so that pass updates one array and shares `par`'s sums.
-        let r = &w.r;
+        let z = &w.y;
         x.par_iter_mut().zip(w.p.par_iter_mut()).enumerate().for_each(|(a, (xi, pi))| {
             *xi += alpha * *pi;
-            *pi = precondition(minv, normals, a, &r[a]) + beta * *pi;
+            *pi = z[a] + beta * *pi;
         });
         stats.iterations += 1;
         stats.residual = rr.sqrt() / bnorm;
@@ -633,6 +780,7 @@ pub fn coupling_forces(c: &Ctx, dens: &DensityFields, v: &[Vector3<f64>]) -> Vec
         max_iterations: 0,
         preconditioner: Preconditioner::Identity,
         warm_start: false,
+        coarse_cell: 0.0,
     };
     let ef = ElasticFields::default();
     let op = Op::new(c, dens, &ef, &s, &[]);
@@ -655,4 +803,91 @@ pub fn buoyancy_forces(c: &Ctx, kappa: &[f64]) -> Vec<Vector3<f64>> {
             f
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{presets, Simulation};
+
+    /// A 6 x 6 x 10 cm sponge with pore water at r = 5 mm on a floor, pressed by a plate from above
+    /// (its contacts become velocity constraints), with aggregates two spacings wide so that
+    /// most particles sit next to an aggregate face.
+    fn pressed_sponge() -> Simulation {
+        let mut cfg = presets::sponge([0.06, 0.06, 0.1], 0.6, 0.005);
+        cfg.cg.preconditioner = Preconditioner::TwoLevel;
+        cfg.cg.coarse_cell = 2.0;
+        // Every term of the operator: wall viscosity too (off by default).
+        cfg.fluid.boundary_viscosity = 0.01;
+        cfg.scene.bodies.push(crate::config::BodyConfig {
+            name: "plate".into(),
+            shape: crate::config::Shape::Box { half_extents: [0.05, 0.05, 0.01] },
+            position: [0.0, 0.0, 0.1 + 0.01],
+            rotation: [0.0; 3],
+            kinematic: true,
+        });
+        let mut sim = Simulation::new(cfg, Some(2)).unwrap();
+        sim.set_body_velocity(1, Vector3::new(0.0, 0.0, -0.2), Vector3::zeros()).unwrap();
+        // The sponge first sags away from the plate; it is caught after about 50 steps.
+        sim.run(60).unwrap();
+        assert!(sim.contacts().len() > 10, "{} contacts", sim.contacts().len());
+        sim
+    }
+
+    #[test]
+    fn coarse_rows_equal_the_operator_applied_to_aggregate_translations() {
+        let mut sim = pressed_sponge();
+        sim.with_operator(|op| {
+            let tl = op.coarse.as_ref().expect("two-level preconditioner configured");
+            let n = op.c.p.len();
+            assert!(op.normals.iter().any(|n| *n != Vector3::zeros()), "the scene must hold contacts");
+            let agg = tl.aggregates();
+            assert!(agg.len() > 8);
+            let mut prl = vec![Matrix3::zeros(); op.c.p.n_solid()];
+            let (mut y, mut out) = (vec![Vector3::zeros(); n], vec![Vector3::zeros(); n]);
+            let mut worst: f64 = 0.0;
+            for j in 0..agg.len() {
+                let mut col = vec![Matrix3::zeros(); n];
+                for (a, m) in tl.az_column(j) {
+                    col[a as usize] = *m;
+                }
+                let scale = col.iter().map(|m| m.abs().max()).fold(0.0, f64::max);
+                for k in 0..3 {
+                    y.iter_mut().for_each(|v| *v = Vector3::zeros());
+                    for &a in agg.members(j) {
+                        y[a as usize] = Vector3::ith(k, 1.0);
+                    }
+                    op.apply(&y, &mut out, &mut prl);
+                    filter(&mut out, &op.normals);
+                    for a in 0..n {
+                        let err = (out[a] - col[a].column(k)).abs().max() / scale;
+                        worst = worst.max(err);
+                    }
+                }
+            }
+            assert!(worst < 1e-12, "largest deviation {worst:e} of the block scale");
+        });
+    }
+
+    #[test]
+    fn two_level_and_block_jacobi_reach_the_same_velocities() {
+        let mut a = pressed_sponge();
+        let mut state = a.snapshot();
+        state.config.cg.preconditioner = Preconditioner::BlockJacobi;
+        let mut b = Simulation::new(state.config.clone(), Some(2)).unwrap();
+        b.restore(state).unwrap();
+        let (mut ia, mut ib) = (0, 0);
+        for _ in 0..3 {
+            a.step().unwrap();
+            b.step().unwrap();
+            ia += a.stats().cg.iterations + a.stats().pressure_response.iterations;
+            ib += b.stats().cg.iterations + b.stats().pressure_response.iterations;
+        }
+        // Measured 64 against 91 here; the sponge is small, larger ones gain more (about half).
+        assert!(10 * ia < 9 * ib, "two-level {ia} iterations, block Jacobi {ib}");
+        let vmax = b.particles().v.iter().map(|v| v.norm()).fold(0.0, f64::max);
+        let dv = a.particles().v.iter().zip(&b.particles().v).map(|(x, y)| (x - y).norm()).fold(0.0, f64::max);
+        // Both stop at a relative residual of 1e-4 of the right-hand side.
+        assert!(dv < 1e-3 * vmax, "largest velocity difference {dv} m/s (max speed {vmax})");
+    }
 }

@@ -61,6 +61,38 @@ where
     std::array::from_fn(|k| partial.iter().map(|p| p[k]).sum())
 }
 
+/// [`for_each_sum`] over two arrays of equal length: `f(i, &mut a[i], &mut b[i])`, same
+/// chunks and summation order.
+#[inline(always)]
+pub fn for_each2_sum<A, B, F, const K: usize>(a: &mut [A], b: &mut [B], f: F) -> [f64; K]
+where
+    A: Send,
+    B: Send,
+    F: Fn(usize, &mut A, &mut B) -> [f64; K] + Sync,
+{
+    let partial: Vec<[f64; K]> = a
+        .par_chunks_mut(REDUCE_CHUNK)
+        .zip(b.par_chunks_mut(REDUCE_CHUNK))
+        .enumerate()
+        .map(|(c, (ca, cb))| {
+            crate::cpu::hot(
+                #[inline(always)]
+                || {
+                    let mut s = [0.0; K];
+                    for (k, (x, y)) in ca.iter_mut().zip(cb.iter_mut()).enumerate() {
+                        let v = f(c * REDUCE_CHUNK + k, x, y);
+                        for (acc, vi) in s.iter_mut().zip(v) {
+                            *acc += vi;
+                        }
+                    }
+                    s
+                },
+            )
+        })
+        .collect();
+    std::array::from_fn(|k| partial.iter().map(|p| p[k]).sum())
+}
+
 /// Deterministic maximum of `f(i)`; NaN wins so that divergence is never hidden.
 pub fn max<F>(n: usize, f: F) -> f64
 where

@@ -74,6 +74,20 @@ pub struct Simulation {
     retained: Vec<bool>,
 }
 
+/// The implicit solve's settings from the config.
+fn nonpressure_settings(cfg: &SimConfig) -> NonPressureSettings {
+    NonPressureSettings {
+        viscosity: cfg.fluid.viscosity,
+        boundary_viscosity: cfg.fluid.boundary_viscosity,
+        viscosity_mode: cfg.fluid.viscosity_mode,
+        tolerance: cfg.cg.tolerance,
+        max_iterations: cfg.cg.max_iterations,
+        preconditioner: cfg.cg.preconditioner,
+        warm_start: cfg.cg.warm_start,
+        coarse_cell: cfg.cg.coarse_cell * cfg.spacing(),
+    }
+}
+
 /// Default thread count: `RMI_NUM_THREADS`, else `RAYON_NUM_THREADS`, else the core count.
 pub fn default_threads() -> usize {
     for var in ["RMI_NUM_THREADS", "RAYON_NUM_THREADS"] {
@@ -335,6 +349,24 @@ impl Simulation {
         self.update_retained();
     }
 
+    /// Builds the next step's implicit system (neighbours, fields, contacts, operator) at the
+    /// current state and hands it to `f`, without stepping.
+    #[cfg(test)]
+    pub(crate) fn with_operator<R>(&mut self, f: impl FnOnce(&nonpressure::Op) -> R) -> R {
+        self.build_neighbours();
+        let cfg = &self.cfg;
+        let ctx = Ctx::new(&self.p, &self.nb, &self.nbb, &self.bnd, &self.objects, &self.rest, &self.kernel, cfg);
+        density::compute(&ctx, &mut self.dens);
+        elasticity::rotations(&ctx, &mut self.solid.rotation);
+        elasticity::prepare(&ctx, &self.solid.rotation, &self.dens.saturation, &mut self.ef);
+        let nps = nonpressure_settings(cfg);
+        let detected =
+            contact::detect(&self.p, &self.nbb, &self.bnd, cfg.particle_radius, cfg.dt, &self.contact_active);
+        let cons: Vec<_> = detected.iter().map(|d| d.0).collect();
+        let op = nonpressure::Op::new(&ctx, &self.dens, &self.ef, &nps, &cons);
+        f(&op)
+    }
+
     fn build_neighbours(&mut self) {
         let h = self.kernel.support();
         self.bnd.ensure_grid(h);
@@ -387,15 +419,7 @@ impl Simulation {
         }
         let t2 = Instant::now();
         // 6. Strongly coupled implicit non-pressure solve.
-        let nps = NonPressureSettings {
-            viscosity: cfg.fluid.viscosity,
-            boundary_viscosity: cfg.fluid.boundary_viscosity,
-            viscosity_mode: cfg.fluid.viscosity_mode,
-            tolerance: cfg.cg.tolerance,
-            max_iterations: cfg.cg.max_iterations,
-            preconditioner: cfg.cg.preconditioner,
-            warm_start: cfg.cg.warm_start,
-        };
+        let nps = nonpressure_settings(cfg);
         let v_old = self.p.v.clone();
         let kappa_dt2_old = self.kappa_dt2.clone();
         let mut v = self.p.v.clone();

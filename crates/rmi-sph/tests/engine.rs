@@ -5,37 +5,50 @@ use common::*;
 use rmi_sph::config::*;
 use rmi_sph::{RmiError, Simulation};
 
+/// The small sponge with each CG preconditioner that has a parallel code path of its own.
+fn preconditioned_sponges() -> [(Preconditioner, SimConfig); 2] {
+    [Preconditioner::BlockJacobi, Preconditioner::TwoLevel].map(|p| {
+        let mut cfg = small_sponge();
+        cfg.cg.preconditioner = p;
+        (p, cfg)
+    })
+}
+
 #[test]
-fn one_and_two_threads_are_bit_identical() {
-    let cfg = small_sponge();
-    let mut a = Simulation::new(cfg.clone(), Some(1)).unwrap();
-    let mut b = Simulation::new(cfg, Some(2)).unwrap();
-    run(&mut a, 30);
-    run(&mut b, 30);
-    assert!(a.stats().cg.iterations > 0, "the implicit solve must run in this scene");
-    assert!(bits(&a) == bits(&b), "positions or velocities differ between 1 and 2 threads");
-    assert_eq!(
-        a.kappa().iter().map(|k| k.to_bits()).collect::<Vec<_>>(),
-        b.kappa().iter().map(|k| k.to_bits()).collect::<Vec<_>>()
-    );
+fn one_two_and_three_threads_are_bit_identical() {
+    for (prec, cfg) in preconditioned_sponges() {
+        let mut a = Simulation::new(cfg.clone(), Some(1)).unwrap();
+        run(&mut a, 30);
+        assert!(a.stats().cg.iterations > 0, "the implicit solve must run in this scene");
+        for threads in [2, 3] {
+            let mut b = Simulation::new(cfg.clone(), Some(threads)).unwrap();
+            run(&mut b, 30);
+            assert!(bits(&a) == bits(&b), "{prec:?}: positions or velocities differ between 1 and {threads} threads");
+            assert_eq!(
+                a.kappa().iter().map(|k| k.to_bits()).collect::<Vec<_>>(),
+                b.kappa().iter().map(|k| k.to_bits()).collect::<Vec<_>>()
+            );
+        }
+    }
 }
 
 #[test]
 fn snapshot_continuation_is_bit_identical() {
-    let cfg = small_sponge();
-    let mut a = Simulation::new(cfg, Some(2)).unwrap();
-    run(&mut a, 20);
-    let dir = std::env::temp_dir().join(format!("rmi-snap-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("state.rmisnap");
-    a.save(&path).unwrap();
-    run(&mut a, 30);
-    // Another thread count on purpose: the continuation must not depend on it.
-    let mut b = Simulation::load(&path, Some(1)).unwrap();
-    assert_eq!(b.step_count(), 20);
-    run(&mut b, 30);
-    assert!(bits(&a) == bits(&b), "continuation from the snapshot differs");
-    std::fs::remove_dir_all(&dir).unwrap();
+    for (prec, cfg) in preconditioned_sponges() {
+        let mut a = Simulation::new(cfg, Some(2)).unwrap();
+        run(&mut a, 20);
+        let dir = std::env::temp_dir().join(format!("rmi-snap-{}-{prec:?}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("state.rmisnap");
+        a.save(&path).unwrap();
+        run(&mut a, 30);
+        // Another thread count on purpose: the continuation must not depend on it.
+        let mut b = Simulation::load(&path, Some(1)).unwrap();
+        assert_eq!(b.step_count(), 20);
+        run(&mut b, 30);
+        assert!(bits(&a) == bits(&b), "{prec:?}: continuation from the snapshot differs");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
 
 #[test]

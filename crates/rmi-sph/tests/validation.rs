@@ -283,10 +283,13 @@ fn buoyancy_of_submerged_skeleton() {
     let rho = cfg.fluid.density;
     let mut sim = Simulation::new(cfg, Some(2)).unwrap();
     run(&mut sim, 1000);
+    // The force still drifts by a few per cent over seconds after 1 s (0.80-0.88 N between
+    // 1 and 3.3 s, in either direction depending on the last bits of the solves; seepage
+    // between the pores and the tank), so it is averaged over a whole second, not 50 ms.
     let mut fz = 0.0;
-    for _ in 0..50 {
+    for _ in 0..1000 {
         sim.step().unwrap();
-        fz += sim.buoyancy_force(0).z / 50.0;
+        fz += sim.buoyancy_force(0).z / 1000.0;
     }
     let vol = 0.06 * 0.06 * 0.06;
     let expected = (1.0 - phi) * vol * rho * G;
@@ -294,7 +297,7 @@ fn buoyancy_of_submerged_skeleton() {
     println!("buoyancy: {:.3} N vs (1-phi) V rho g = {:.3} N ({:.1} %)", fz, expected, 100.0 * err);
     record(
         "buoyancy",
-        "fixed 6 cm skeleton submerged, phi = 0.6, k = 1e-9 m^2, r = 5 mm",
+        "fixed 6 cm skeleton submerged, phi = 0.6, k = 1e-9 m^2, r = 5 mm, mean over 1-2 s",
         &format!("{fz:.3} N"),
         &format!("(1-phi) V rho g = {expected:.3} N"),
         &format!("{:.1} %", 100.0 * err),
