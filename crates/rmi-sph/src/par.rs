@@ -39,26 +39,9 @@ where
     T: Send,
     F: Fn(usize, &mut T) -> [f64; K] + Sync,
 {
-    let partial: Vec<[f64; K]> = out
-        .par_chunks_mut(REDUCE_CHUNK)
-        .enumerate()
-        .map(|(c, ch)| {
-            crate::cpu::hot(
-                #[inline(always)]
-                || {
-                    let mut s = [0.0; K];
-                    for (k, x) in ch.iter_mut().enumerate() {
-                        let v = f(c * REDUCE_CHUNK + k, x);
-                        for (acc, vi) in s.iter_mut().zip(v) {
-                            *acc += vi;
-                        }
-                    }
-                    s
-                },
-            )
-        })
-        .collect();
-    std::array::from_fn(|k| partial.iter().map(|p| p[k]).sum())
+    // A slice of zero-sized values costs nothing to allocate or to walk.
+    let mut none = vec![(); out.len()];
+    for_each2_sum(out, &mut none, |i, x, _| f(i, x))
 }
 
 /// [`for_each_sum`] over two arrays of equal length: `f(i, &mut a[i], &mut b[i])`, same
