@@ -212,27 +212,15 @@ impl TwoLevel {
         // E[I, J] = sum over the members b of I of (A Z)_{b, J} (Z is the identity on members).
         let rows: Vec<Vec<(u32, Matrix3<f64>)>> = (0..nagg)
             .into_par_iter()
-            .map_init(
-                || vec![NONE; nagg],
-                |slot, i| {
-                    let mut row: Vec<(u32, Matrix3<f64>)> = Vec::new();
-                    for &a in agg.members(i) {
-                        for (j, m) in az.row(a as usize) {
-                            match slot[j as usize] {
-                                NONE => {
-                                    slot[j as usize] = row.len() as u32;
-                                    row.push((j, *m));
-                                }
-                                k => row[k as usize].1 += m,
-                            }
-                        }
+            .map(|i| {
+                let mut b = RowBuilder { cols: Vec::new(), blks: Vec::new() };
+                for &a in agg.members(i) {
+                    for (j, m) in az.row(a as usize) {
+                        b.add(j, *m);
                     }
-                    for (j, _) in &row {
-                        slot[*j as usize] = NONE;
-                    }
-                    row
-                },
-            )
+                }
+                b.cols.into_iter().zip(b.blks).collect()
+            })
             .collect();
         // Symmetrise: A is symmetric, E only up to round-off.
         let sym: Vec<Vec<(u32, Matrix3<f64>)>> = rows
@@ -259,21 +247,6 @@ impl TwoLevel {
     /// Column `j` of `A Z`: (particle, 3x3 block) in increasing particle order.
     pub fn az_column(&self, j: usize) -> impl Iterator<Item = (u32, &Matrix3<f64>)> {
         self.azt.row(j)
-    }
-
-    /// Number of coarse unknowns (three per aggregate).
-    pub fn unknowns(&self) -> usize {
-        3 * self.agg.len()
-    }
-
-    /// Bytes held, for memory reports.
-    pub fn bytes(&self) -> usize {
-        self.agg.of.capacity() * 4
-            + (self.agg.start.capacity() + self.agg.members.capacity()) * 4
-            + self.azt.start.capacity() * 4
-            + self.azt.col.capacity() * 4
-            + self.azt.blk.capacity() * 72
-            + self.factor.bytes()
     }
 
     /// `E^-1 (Z^T r - (A Z)^T y)`; `r` already filtered (so `Z^T r` is a sum over members).

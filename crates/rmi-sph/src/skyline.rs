@@ -114,11 +114,6 @@ impl Skyline {
         self.first.is_empty()
     }
 
-    /// Bytes held by the factor, for memory reports.
-    pub fn bytes(&self) -> usize {
-        self.val.capacity() * 8 + (self.pos.capacity() + self.first.capacity()) * 4 + self.start.capacity() * 8
-    }
-
     /// Solves `A x = b` in place (`b` in the original block order, 3 entries per block).
     pub fn solve(&self, b: &mut [f64]) {
         let n = self.len();
