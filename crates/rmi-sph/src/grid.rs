@@ -19,12 +19,20 @@ pub struct Grid {
     pub sorted_idx: Vec<u32>,
     /// Position of each sorted point.
     pub sorted_x: Vec<Vector3<f64>>,
+    /// The same positions by coordinate (x, y, z), each followed by [`SOA_PAD`] zeros, so
+    /// that a neighbour scan can test four candidates per instruction, reading past the end of
+    /// a run without bounds checks.
+    soa: [Vec<f64>; 3],
     cell_of: Vec<u32>,
     /// Per cell, whether a query there has any candidate (empty: not computed, scan always).
     /// Worth it for sparse, rarely rebuilt point sets such as the walls, where most water
     /// particles would otherwise scan nine empty runs.
     near: Vec<bool>,
 }
+
+/// Padding after each coordinate array of [`Grid::soa`]: a 4-wide load at the last point stays
+/// inside the allocation.
+pub const SOA_PAD: usize = 3;
 
 /// Cap on cells per point so that a few far-flung particles cannot blow up memory.
 const MAX_CELLS_PER_POINT: usize = 8;
@@ -79,6 +87,17 @@ impl Grid {
             self.sorted_idx[slot] = i as u32;
             self.sorted_x[slot] = points[i];
         }
+        for (k, c) in self.soa.iter_mut().enumerate() {
+            c.clear();
+            c.extend(self.sorted_x.iter().map(|p| p[k]));
+            c.extend([0.0; SOA_PAD]);
+        }
+    }
+
+    /// Sorted positions by coordinate, each array [`SOA_PAD`] entries longer than the point set.
+    #[inline(always)]
+    pub fn soa(&self) -> [&[f64]; 3] {
+        [&self.soa[0], &self.soa[1], &self.soa[2]]
     }
 
     /// Computes the per-cell "has candidates" flags that let [`Grid::for_each_run`] skip

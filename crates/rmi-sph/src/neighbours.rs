@@ -113,55 +113,245 @@ impl NeighbourLists {
         self.chunks.truncate(nchunks);
         let h2 = kernel.support() * kernel.support();
         self.chunks.par_iter_mut().enumerate().for_each(|(ci, ch)| {
-            crate::cpu::hot(
-                #[inline(always)]
-                || {
-                    ch.start.clear();
-                    ch.split.clear();
-                    ch.j.clear();
-                    ch.w.clear();
-                    ch.g.clear();
-                    let mut solid: Vec<(u32, f64, Vector3<f64>)> = Vec::with_capacity(64);
-                    let lo = ci * CHUNK;
-                    let hi = (lo + CHUNK).min(queries.len());
-                    for a in lo..hi {
-                        let xa = queries[a];
-                        ch.start.push(ch.j.len() as u32);
-                        solid.clear();
-                        grid.for_each_run(
-                            &xa,
-                            #[inline(always)]
-                            |lo, hi| {
-                                let xs = &grid.sorted_x[lo..hi];
-                                let ids = &grid.sorted_idx[lo..hi];
-                                for (xb, &b) in xs.iter().zip(ids) {
-                                    let d = xa - xb;
-                                    let r2 = d.norm_squared();
-                                    if r2 >= h2 || (exclude_self && b as usize == a) {
-                                        continue;
-                                    }
-                                    let (w, gf) = kernel.w_and_grad_factor(r2.sqrt());
-                                    let g = d * gf;
-                                    if (b as usize) < n_fluid_targets {
-                                        ch.j.push(b);
-                                        ch.w.push(w);
-                                        ch.g.push(g);
-                                    } else {
-                                        solid.push((b, w, g));
-                                    }
-                                }
-                            },
-                        );
-                        ch.split.push(ch.j.len() as u32);
-                        for &(b, w, g) in &solid {
-                            ch.j.push(b);
-                            ch.w.push(w);
-                            ch.g.push(g);
-                        }
-                    }
-                    ch.start.push(ch.j.len() as u32);
-                },
-            )
+            let lo = ci * CHUNK;
+            let hi = (lo + CHUNK).min(queries.len());
+            let mut fill = Fill {
+                ch,
+                grid,
+                kernel,
+                n_fluid_targets,
+                exclude_self,
+                slots: Vec::new(),
+                fluid: Vec::new(),
+                solid: Vec::new(),
+            };
+            // The four-wide path gathers with 32-bit signed slot indices.
+            #[cfg(target_arch = "x86_64")]
+            if crate::cpu::avx2_enabled() && grid.sorted_idx.len() < i32::MAX as usize {
+                // SAFETY: the CPU has AVX2 and FMA (detected by `avx2_enabled`).
+                unsafe { fill.chunk_avx2(&queries[lo..hi], lo, h2) };
+                return;
+            }
+            fill.chunk(&queries[lo..hi], lo, |xa, slots| scan(grid, xa, h2, slots), emit);
         });
     }
+}
+
+/// State of one chunk's list build.
+struct Fill<'a> {
+    ch: &'a mut NbChunk,
+    grid: &'a Grid,
+    kernel: &'a CubicKernel,
+    n_fluid_targets: usize,
+    exclude_self: bool,
+    /// Sorted slots of the current query's candidates inside the support, in scan order.
+    slots: Vec<u32>,
+    /// The same slots split into fluid and solid targets (self excluded), each in scan order.
+    fluid: Vec<u32>,
+    solid: Vec<u32>,
+}
+
+impl Fill<'_> {
+    /// Builds the chunk's lists. `scan(x_a, slots)` fills `slots` with the sorted slots of the
+    /// points closer than the support, in the grid's scan order, and returns their number;
+    /// `emit(chunk, grid, kernel, x_a, slots)` appends the pairs of `x_a` with those points.
+    #[inline(always)]
+    fn chunk(
+        &mut self,
+        queries: &[Vector3<f64>],
+        first: usize,
+        scan: impl Fn(&Vector3<f64>, &mut Vec<u32>) -> usize,
+        emit: impl Fn(&mut NbChunk, &Grid, &CubicKernel, &Vector3<f64>, &[u32]),
+    ) {
+        let ch = &mut *self.ch;
+        ch.start.clear();
+        ch.split.clear();
+        ch.j.clear();
+        ch.w.clear();
+        ch.g.clear();
+        let grid = self.grid;
+        for (k, xa) in queries.iter().enumerate() {
+            let a = first + k;
+            ch.start.push(ch.j.len() as u32);
+            let n = scan(xa, &mut self.slots);
+            self.fluid.clear();
+            self.solid.clear();
+            for &slot in &self.slots[..n] {
+                let b = grid.sorted_idx[slot as usize] as usize;
+                if self.exclude_self && b == a {
+                    continue;
+                }
+                if b < self.n_fluid_targets { &mut self.fluid } else { &mut self.solid }.push(slot);
+            }
+            emit(ch, grid, self.kernel, xa, &self.fluid);
+            ch.split.push(ch.j.len() as u32);
+            emit(ch, grid, self.kernel, xa, &self.solid);
+        }
+        ch.start.push(ch.j.len() as u32);
+    }
+
+    /// [`Fill::chunk`] with the four-wide scan and pair evaluation, compiled for AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx,avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+    unsafe fn chunk_avx2(&mut self, queries: &[Vector3<f64>], first: usize, h2: f64) {
+        let grid = self.grid;
+        self.chunk(
+            queries,
+            first,
+            |xa, slots| unsafe { scan_avx2(grid, xa, h2, slots) },
+            |ch, grid, kernel, xa, slots| unsafe { emit_avx2(ch, grid, kernel, xa, slots) },
+        );
+    }
+}
+
+/// Scalar pair evaluation: `d = x_a - x_b`, `W(|d|)`, `grad W = g(|d|) d`.
+fn emit(ch: &mut NbChunk, grid: &Grid, kernel: &CubicKernel, xa: &Vector3<f64>, slots: &[u32]) {
+    for &slot in slots {
+        let d = xa - grid.sorted_x[slot as usize];
+        let (w, gf) = kernel.w_and_grad_factor(d.norm_squared().sqrt());
+        ch.j.push(grid.sorted_idx[slot as usize]);
+        ch.w.push(w);
+        ch.g.push(d * gf);
+    }
+}
+
+/// [`emit`] four pairs at a time, bit for bit: coordinates gathered from the grid's
+/// coordinate arrays, the kernel through [`CubicKernel::w_and_grad_factor_x4`].
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx,avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+unsafe fn emit_avx2(ch: &mut NbChunk, grid: &Grid, kernel: &CubicKernel, xa: &Vector3<f64>, slots: &[u32]) {
+    use std::arch::x86_64::*;
+    let [sx, sy, sz] = grid.soa();
+    let (ax, ay, az) = (_mm256_set1_pd(xa.x), _mm256_set1_pd(xa.y), _mm256_set1_pd(xa.z));
+    let m = slots.len();
+    let base = ch.j.len();
+    ch.j.reserve(m);
+    ch.w.reserve(m);
+    ch.g.reserve(m);
+    let (jo, wo, go) = (ch.j.as_mut_ptr(), ch.w.as_mut_ptr(), ch.g.as_mut_ptr());
+    for (q, group) in slots.chunks(4).enumerate() {
+        // Lanes past the end repeat the first slot; their results are dropped.
+        let mut lane = [group[0]; 4];
+        lane[..group.len()].copy_from_slice(group);
+        let (mut w, mut gx, mut gy, mut gz) = ([0.0; 4], [0.0; 4], [0.0; 4], [0.0; 4]);
+        // SAFETY: the slots index the grid's points, which each coordinate array holds; the
+        // writes stay below base + m, within the capacity reserved above.
+        unsafe {
+            let idx = _mm_loadu_si128(lane.as_ptr() as *const __m128i);
+            let dx = _mm256_sub_pd(ax, _mm256_i32gather_pd::<8>(sx.as_ptr(), idx));
+            let dy = _mm256_sub_pd(ay, _mm256_i32gather_pd::<8>(sy.as_ptr(), idx));
+            let dz = _mm256_sub_pd(az, _mm256_i32gather_pd::<8>(sz.as_ptr(), idx));
+            let r2 = _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)), _mm256_mul_pd(dz, dz));
+            let (wv, gf) = kernel.w_and_grad_factor_x4(_mm256_sqrt_pd(r2));
+            _mm256_storeu_pd(w.as_mut_ptr(), wv);
+            _mm256_storeu_pd(gx.as_mut_ptr(), _mm256_mul_pd(dx, gf));
+            _mm256_storeu_pd(gy.as_mut_ptr(), _mm256_mul_pd(dy, gf));
+            _mm256_storeu_pd(gz.as_mut_ptr(), _mm256_mul_pd(dz, gf));
+            for (k, &slot) in group.iter().enumerate() {
+                let at = base + 4 * q + k;
+                *jo.add(at) = *grid.sorted_idx.get_unchecked(slot as usize);
+                *wo.add(at) = w[k];
+                *go.add(at) = Vector3::new(gx[k], gy[k], gz[k]);
+            }
+        }
+    }
+    // SAFETY: the first base + m entries are initialised (the old ones and those just written).
+    unsafe {
+        ch.j.set_len(base + m);
+        ch.w.set_len(base + m);
+        ch.g.set_len(base + m);
+    }
+}
+
+/// Scalar scan: the slots of the points within the support of `xa`, in scan order.
+#[inline(always)]
+fn scan(grid: &Grid, xa: &Vector3<f64>, h2: f64, slots: &mut Vec<u32>) -> usize {
+    slots.clear();
+    grid.for_each_run(
+        xa,
+        #[inline(always)]
+        |lo, hi| {
+            for (k, xb) in grid.sorted_x[lo..hi].iter().enumerate() {
+                // Skip on `r2 >= h2` rather than keep on `r2 < h2`: a NaN distance is kept, as
+                // the AVX2 scan keeps it, so a diverging state reaches the guard the same way
+                // on any CPU.
+                if (xa - xb).norm_squared() >= h2 {
+                    continue;
+                }
+                slots.push((lo + k) as u32);
+            }
+        },
+    );
+    slots.len()
+}
+
+/// For each 4-bit mask, the positions of its set bits, packed to the front.
+#[cfg(target_arch = "x86_64")]
+const COMPRESS: [[u32; 4]; 16] = {
+    let mut t = [[0u32; 4]; 16];
+    let mut m = 0;
+    while m < 16 {
+        let mut n = 0;
+        let mut bit = 0;
+        while bit < 4 {
+            if m & (1 << bit) != 0 {
+                t[m][n] = bit as u32;
+                n += 1;
+            }
+            bit += 1;
+        }
+        m += 1;
+    }
+    t
+};
+
+/// The scan four candidates at a time: distances in AVX registers, the accepted slots packed
+/// into `slots` through [`COMPRESS`] without a branch per candidate (the scalar scan's
+/// accept test is a coin flip the branch predictor keeps losing). Same slots, same order as
+/// [`scan`]; returns how many (`slots` may hold garbage after them).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx,avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+unsafe fn scan_avx2(grid: &Grid, xa: &Vector3<f64>, h2: f64, slots: &mut Vec<u32>) -> usize {
+    use std::arch::x86_64::*;
+    const LANES: [i32; 5] = [0, 1, 3, 7, 15];
+    let [sx, sy, sz] = grid.soa();
+    let (ax, ay, az) = (_mm256_set1_pd(xa.x), _mm256_set1_pd(xa.y), _mm256_set1_pd(xa.z));
+    let h2v = _mm256_set1_pd(h2);
+    let mut n = 0usize;
+    grid.for_each_run(
+        xa,
+        #[inline(always)]
+        |lo, hi| {
+            if slots.len() < n + (hi - lo) + 4 {
+                slots.resize(n + (hi - lo) + 4, 0);
+            }
+            // A raw pointer held in a register: through the Vec, every store would reload it.
+            let out = slots.as_mut_ptr();
+            let mut i = lo;
+            while i < hi {
+                // SAFETY: i < hi <= points, and each coordinate array has SOA_PAD >= 3 entries
+                // beyond the points; `slots` has room for 4 more at n (resized above).
+                unsafe {
+                    let dx = _mm256_sub_pd(ax, _mm256_loadu_pd(sx.as_ptr().add(i)));
+                    let dy = _mm256_sub_pd(ay, _mm256_loadu_pd(sy.as_ptr().add(i)));
+                    let dz = _mm256_sub_pd(az, _mm256_loadu_pd(sz.as_ptr().add(i)));
+                    // (dx^2 + dy^2) + dz^2, unfused: nalgebra's norm_squared to the bit.
+                    let r2 = _mm256_add_pd(
+                        _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)),
+                        _mm256_mul_pd(dz, dz),
+                    );
+                    let keep = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_NGE_UQ>(r2, h2v));
+                    let m = (keep & LANES[(hi - i).min(4)]) as usize;
+                    let idx = _mm_add_epi32(
+                        _mm_set1_epi32(i as i32),
+                        _mm_loadu_si128(COMPRESS[m].as_ptr() as *const __m128i),
+                    );
+                    _mm_storeu_si128(out.add(n) as *mut __m128i, idx);
+                    n += m.count_ones() as usize;
+                }
+                i += 4;
+            }
+        },
+    );
+    n
 }
