@@ -219,17 +219,19 @@ mod tests {
         let h = 0.07;
         let (lo, hi) = bounds(&pts, 0.0);
         let mut g = Grid::default();
-        g.build(&pts, lo, hi, h);
-        for (i, p) in pts.iter().enumerate().step_by(37) {
-            let mut found = Vec::new();
-            g.for_each_candidate(p, |slot| {
-                if (g.sorted_x[slot] - p).norm() < h {
-                    found.push(g.sorted_idx[slot] as usize);
-                }
-            });
-            found.sort();
-            let brute: Vec<usize> = (0..pts.len()).filter(|&j| (pts[j] - p).norm() < h).collect();
-            assert_eq!(found, brute, "point {i}");
+        for reach in 1..=3 {
+            g.build_with(&pts, lo, hi, h, reach);
+            for (i, p) in pts.iter().enumerate().step_by(37) {
+                let mut found = Vec::new();
+                g.for_each_candidate(p, |slot| {
+                    if (g.sorted_x[slot] - p).norm() < h {
+                        found.push(g.sorted_idx[slot] as usize);
+                    }
+                });
+                found.sort();
+                let brute: Vec<usize> = (0..pts.len()).filter(|&j| (pts[j] - p).norm() < h).collect();
+                assert_eq!(found, brute, "point {i}, reach {reach}");
+            }
         }
     }
 

@@ -20,6 +20,8 @@ pub fn dam_break(radius: f64) -> SimConfig {
     cfg.pressure.max_error = 5e-4;
     cfg.pressure.min_iterations = 2;
     cfg.max_velocity = 30.0;
+    // Water only: the 3^3-cell scan is the faster one here (`SimConfig::neighbour_reach`).
+    cfg.neighbour_reach = 1;
     cfg.scene.bodies.push(BodyConfig {
         name: "tank".into(),
         shape: Shape::Container { half_extents: [2.0, 0.75, 1.5] },

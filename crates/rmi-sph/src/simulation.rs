@@ -371,7 +371,7 @@ impl Simulation {
         let h = self.kernel.support();
         self.bnd.ensure_grid(h);
         let (lo, hi) = bounds(&self.p.x, h);
-        self.grid.build_with(&self.p.x, lo, hi, h, 2);
+        self.grid.build_with(&self.p.x, lo, hi, h, self.cfg.neighbour_reach as usize);
         self.nb.build(&self.p.x, &self.grid, &self.kernel, self.p.n_fluid, true);
         self.nbb.build(&self.p.x, &self.bnd.grid, &self.kernel, 0, false);
     }
