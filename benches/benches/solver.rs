@@ -25,6 +25,7 @@ fn neighbour_search(c: &mut Criterion) {
     let sim = warm(presets::dam_break(radius("RMI_BENCH_RADIUS_DAM", 0.0125)), 20);
     let x = sim.particles().x.clone();
     let kernel = CubicKernel::new(4.0 * sim.radius());
+    let reach = sim.config().neighbour_reach as usize;
     let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
     let mut grid = Grid::default();
     let mut nb = NeighbourLists::default();
@@ -35,7 +36,7 @@ fn neighbour_search(c: &mut Criterion) {
         b.iter(|| {
             pool.install(|| {
                 let (lo, hi) = bounds(&x, kernel.support());
-                grid.build_with(&x, lo, hi, kernel.support(), 2);
+                grid.build_with(&x, lo, hi, kernel.support(), reach);
                 nb.build(&x, &grid, &kernel, x.len(), true);
             })
         })
