@@ -78,8 +78,8 @@ impl CubicKernel {
     }
 
     /// [`Self::w_and_grad_factor`] for four distances at once, bit for bit: the same
-    /// operations in the same order, every branch evaluated and the lane's result selected
-    /// (a distance the scalar code would branch on is a coin flip for the predictor).
+    /// operations in the same order, every branch evaluated and the lane's result selected,
+    /// so that four pairs cost one pass without a data-dependent branch.
     ///
     /// # Safety
     /// The CPU must support AVX.
