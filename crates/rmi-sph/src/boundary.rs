@@ -132,7 +132,7 @@ impl Boundary {
             for p in &pts {
                 let mut s = kernel.w0();
                 g.for_each_candidate(p, |slot| {
-                    let r = (g.sorted_x[slot] - p).norm();
+                    let r = (g.point(slot) - p).norm();
                     if r > 1e-12 {
                         s += kernel.w(r);
                     }

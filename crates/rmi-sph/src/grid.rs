@@ -17,11 +17,9 @@ pub struct Grid {
     cell_start: Vec<u32>,
     /// Original index of each sorted point.
     pub sorted_idx: Vec<u32>,
-    /// Position of each sorted point.
-    pub sorted_x: Vec<Vector3<f64>>,
-    /// The same positions by coordinate (x, y, z), each followed by [`SOA_PAD`] zeros, so
-    /// that a neighbour scan can test four candidates per instruction, reading past the end of
-    /// a run without bounds checks.
+    /// Positions of the sorted points by coordinate (x, y, z), each followed by [`SOA_PAD`]
+    /// zeros, so that a neighbour scan can test four candidates per instruction, reading past
+    /// the end of a run without bounds checks. [`Grid::point`] reads one point back.
     soa: [Vec<f64>; 3],
     cell_of: Vec<u32>,
     /// Per cell, whether a query there has any candidate (empty: not computed, scan always).
@@ -77,21 +75,25 @@ impl Grid {
         }
         self.sorted_idx.clear();
         self.sorted_idx.resize(points.len(), 0);
-        self.sorted_x.clear();
-        self.sorted_x.resize(points.len(), Vector3::zeros());
+        for c in &mut self.soa {
+            c.clear();
+            c.resize(points.len() + SOA_PAD, 0.0);
+        }
         // Stable scatter: points of one cell stay in index order (deterministic lists).
         let mut fill: Vec<u32> = self.cell_start[..ncell].to_vec();
+        let [sx, sy, sz] = &mut self.soa;
         for (i, &c) in self.cell_of.iter().enumerate() {
             let slot = fill[c as usize] as usize;
             fill[c as usize] += 1;
             self.sorted_idx[slot] = i as u32;
-            self.sorted_x[slot] = points[i];
+            (sx[slot], sy[slot], sz[slot]) = (points[i].x, points[i].y, points[i].z);
         }
-        for (k, c) in self.soa.iter_mut().enumerate() {
-            c.clear();
-            c.extend(self.sorted_x.iter().map(|p| p[k]));
-            c.extend([0.0; SOA_PAD]);
-        }
+    }
+
+    /// Position of the point in sorted slot `slot`.
+    #[inline(always)]
+    pub fn point(&self, slot: usize) -> Vector3<f64> {
+        Vector3::new(self.soa[0][slot], self.soa[1][slot], self.soa[2][slot])
     }
 
     /// Sorted positions by coordinate, each array [`SOA_PAD`] entries longer than the point set.
@@ -224,7 +226,7 @@ mod tests {
             for (i, p) in pts.iter().enumerate().step_by(37) {
                 let mut found = Vec::new();
                 g.for_each_candidate(p, |slot| {
-                    if (g.sorted_x[slot] - p).norm() < h {
+                    if (g.point(slot) - p).norm() < h {
                         found.push(g.sorted_idx[slot] as usize);
                     }
                 });
@@ -256,7 +258,7 @@ mod tests {
             let p = Vector3::new(f(1), f(2), f(3));
             let mut found = Vec::new();
             g.for_each_candidate(&p, |slot| {
-                if (g.sorted_x[slot] - p).norm() < h {
+                if (g.point(slot) - p).norm() < h {
                     found.push(g.sorted_idx[slot] as usize);
                 }
             });

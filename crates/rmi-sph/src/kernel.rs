@@ -107,8 +107,9 @@ impl CubicKernel {
         let g_out = _mm256_div_pd(_mm256_mul_pd(_mm256_mul_pd(s(-self.l * self.inv_h), f), f), r);
         // Outside the support (or NaN): both zero.
         let inside = _mm256_cmp_pd::<_CMP_LE_OQ>(q, s(1.0));
-        let w = _mm256_and_pd(_mm256_blendv_pd(w_out, w_in, _mm256_cmp_pd::<_CMP_LE_OQ>(q, s(0.5))), inside);
-        let g = _mm256_and_pd(_mm256_blendv_pd(g_out, g_in, _mm256_cmp_pd::<_CMP_LE_OQ>(q, s(0.5))), inside);
+        let inner = _mm256_cmp_pd::<_CMP_LE_OQ>(q, s(0.5));
+        let w = _mm256_and_pd(_mm256_blendv_pd(w_out, w_in, inner), inside);
+        let g = _mm256_and_pd(_mm256_blendv_pd(g_out, g_in, inner), inside);
         (w, g)
     }
 
@@ -156,6 +157,7 @@ mod tests {
         }
         assert_eq!(k.w(0.05), 0.0);
     }
+
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn four_wide_kernel_has_the_bits_of_the_scalar_one() {

@@ -132,7 +132,12 @@ impl NeighbourLists {
                 unsafe { fill.chunk_avx2(&queries[lo..hi], lo, h2) };
                 return;
             }
-            fill.chunk(&queries[lo..hi], lo, |xa, slots| scan(grid, xa, h2, slots), emit);
+            fill.chunk(
+                &queries[lo..hi],
+                lo,
+                |xa, slots| scan(grid, xa, h2, slots),
+                |ch, xa, slots| emit(ch, grid, kernel, xa, slots),
+            );
         });
     }
 }
@@ -154,14 +159,14 @@ struct Fill<'a> {
 impl Fill<'_> {
     /// Builds the chunk's lists. `scan(x_a, slots)` fills `slots` with the sorted slots of the
     /// points closer than the support, in the grid's scan order, and returns their number;
-    /// `emit(chunk, grid, kernel, x_a, slots)` appends the pairs of `x_a` with those points.
+    /// `emit(chunk, x_a, slots)` appends the pairs of `x_a` with those points.
     #[inline(always)]
     fn chunk(
         &mut self,
         queries: &[Vector3<f64>],
         first: usize,
         scan: impl Fn(&Vector3<f64>, &mut Vec<u32>) -> usize,
-        emit: impl Fn(&mut NbChunk, &Grid, &CubicKernel, &Vector3<f64>, &[u32]),
+        emit: impl Fn(&mut NbChunk, &Vector3<f64>, &[u32]),
     ) {
         let ch = &mut *self.ch;
         ch.start.clear();
@@ -183,9 +188,9 @@ impl Fill<'_> {
                 }
                 if b < self.n_fluid_targets { &mut self.fluid } else { &mut self.solid }.push(slot);
             }
-            emit(ch, grid, self.kernel, xa, &self.fluid);
+            emit(ch, xa, &self.fluid);
             ch.split.push(ch.j.len() as u32);
-            emit(ch, grid, self.kernel, xa, &self.solid);
+            emit(ch, xa, &self.solid);
         }
         ch.start.push(ch.j.len() as u32);
     }
@@ -194,12 +199,12 @@ impl Fill<'_> {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx,avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
     unsafe fn chunk_avx2(&mut self, queries: &[Vector3<f64>], first: usize, h2: f64) {
-        let grid = self.grid;
+        let (grid, kernel) = (self.grid, self.kernel);
         self.chunk(
             queries,
             first,
             |xa, slots| unsafe { scan_avx2(grid, xa, h2, slots) },
-            |ch, grid, kernel, xa, slots| unsafe { emit_avx2(ch, grid, kernel, xa, slots) },
+            |ch, xa, slots| unsafe { emit_avx2(ch, grid, kernel, xa, slots) },
         );
     }
 }
@@ -207,7 +212,7 @@ impl Fill<'_> {
 /// Scalar pair evaluation: `d = x_a - x_b`, `W(|d|)`, `grad W = g(|d|) d`.
 fn emit(ch: &mut NbChunk, grid: &Grid, kernel: &CubicKernel, xa: &Vector3<f64>, slots: &[u32]) {
     for &slot in slots {
-        let d = xa - grid.sorted_x[slot as usize];
+        let d = xa - grid.point(slot as usize);
         let (w, gf) = kernel.w_and_grad_factor(d.norm_squared().sqrt());
         ch.j.push(grid.sorted_idx[slot as usize]);
         ch.w.push(w);
@@ -271,14 +276,14 @@ fn scan(grid: &Grid, xa: &Vector3<f64>, h2: f64, slots: &mut Vec<u32>) -> usize 
         xa,
         #[inline(always)]
         |lo, hi| {
-            for (k, xb) in grid.sorted_x[lo..hi].iter().enumerate() {
+            for slot in lo..hi {
                 // Skip on `r2 >= h2` rather than keep on `r2 < h2`: a NaN distance is kept, as
                 // the AVX2 scan keeps it, so a diverging state reaches the guard the same way
                 // on any CPU.
-                if (xa - xb).norm_squared() >= h2 {
+                if (xa - grid.point(slot)).norm_squared() >= h2 {
                     continue;
                 }
-                slots.push((lo + k) as u32);
+                slots.push(slot as u32);
             }
         },
     );

@@ -159,7 +159,7 @@ pub fn rest_data(p: &Particles, fixed: &[bool], kernel: &CubicKernel) -> SolidRe
             if r == s || p.material[nf + r] != p.material[nf + s] {
                 return;
             }
-            let dist = (xa - g.sorted_x[slot]).norm();
+            let dist = (xa - g.point(slot)).norm();
             if dist < kernel.support() {
                 list.push((r as u32, dist));
             }

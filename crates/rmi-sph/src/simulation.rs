@@ -577,11 +577,10 @@ impl Simulation {
     /// Bytes held by particle data, neighbour lists and solver work arrays (approximate).
     pub fn memory_bytes(&self) -> usize {
         let n = self.p.len();
-        // The last 24: the grid's coordinate arrays for the four-wide neighbour scan.
-        let per_particle = 24 * 2 + 8 + 2 + 4 + 8 * 6 + 24 * 2 + 24 * 6 + 8 * 4 + 24;
+        let per_particle = 24 * 2 + 8 + 2 + 4 + 8 * 6 + 24 * 2 + 24 * 6 + 8 * 4;
         // Per rest pair: neighbour index, rest gradient, hourglass constant.
         let solid = self.rest.nbr.len() * (4 + 24 + 8) + self.p.n_solid() * (24 + 8 * 2 + 72 * 3 + 32 + 24 + 16);
-        n * per_particle + self.nb.bytes() + self.nbb.bytes() + solid + self.bnd.x.len() * (24 * 4 + 8 + 2)
+        n * per_particle + self.nb.bytes() + self.nbb.bytes() + solid + self.bnd.x.len() * (24 * 3 + 8 + 2)
     }
 
     /// Captures the full state needed for a bit-identical continuation.
