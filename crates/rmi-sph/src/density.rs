@@ -50,7 +50,7 @@ pub fn compute(c: &Ctx, out: &mut DensityFields) {
             if fluid {
                 for k in 0..nb.n_fluid {
                     dens += v * nb.w[k];
-                    let gv = v * nb.g[k];
+                    let gv = v * nb.g(k);
                     grad_sum += gv;
                     grad_sq += gv.norm_squared();
                 }
@@ -60,7 +60,7 @@ pub fn compute(c: &Ctx, out: &mut DensityFields) {
                 let b = nb.j[k] as usize;
                 let f = c.volume_factor(a, b);
                 dens += f * v * nb.w[k];
-                let gv = f * v * nb.g[k];
+                let gv = f * v * nb.g(k);
                 grad_sum += gv;
                 grad_sq += gv.norm_squared();
                 if fluid {
@@ -82,7 +82,7 @@ pub fn compute(c: &Ctx, out: &mut DensityFields) {
                 let vk = c.bnd.volume[nbb.j[k] as usize];
                 dens += vk * nbb.w[k];
                 bcover += vk * nbb.w[k];
-                grad_sum += vk * nbb.g[k];
+                grad_sum += vk * nbb.g(k);
             }
             let denom = grad_sum.norm_squared() + grad_sq;
             let alpha = if denom > 1e-5 { 1.0 / denom } else { 0.0 };

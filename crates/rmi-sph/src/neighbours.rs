@@ -4,6 +4,13 @@
 //! They are stored in fixed-size chunks of particles so that they can be built in parallel
 //! without a global prefix sum, and so that the layout does not depend on the thread count.
 //! For each particle the fluid neighbours come first, then the solid ones (`split`).
+//!
+//! A pair keeps its kernel gradient as the scalar factor `g(r)` of `grad W = g(r) (x_a - x_b)`
+//! (8 bytes, not the 24 of the vector), with the lists' own copy of the positions they were
+//! built at; [`Nb::g`] multiplies it back out with the same operations the build used, so
+//! the gradient has the bits it would have had stored. The solver's pair passes are limited
+//! by memory traffic, and the gathered positions of nearby (cell-sorted) neighbours mostly
+//! come from cache.
 
 use crate::grid::Grid;
 use crate::kernel::CubicKernel;
@@ -22,8 +29,8 @@ pub struct NbChunk {
     pub j: Vec<u32>,
     /// `W(x_a - x_b)`.
     pub w: Vec<f64>,
-    /// `grad W(x_a - x_b)`.
-    pub g: Vec<Vector3<f64>>,
+    /// Gradient factor `g(|x_a - x_b|)` (1/m^5 for the cubic spline's 1/m^4 gradient).
+    gf: Vec<f64>,
 }
 
 /// Neighbours of one particle: slices into its chunk.
@@ -32,16 +39,34 @@ pub struct Nb<'a> {
     pub j: &'a [u32],
     /// Kernel values.
     pub w: &'a [f64],
-    /// Kernel gradients (w.r.t. the centre particle).
-    pub g: &'a [Vector3<f64>],
     /// Number of fluid neighbours at the front of the slices.
     pub n_fluid: usize,
+    gf: &'a [f64],
+    xa: Vector3<f64>,
+    /// Target positions at build time; every `j` indexes it (checked when built).
+    xt: &'a [Vector3<f64>],
+}
+
+impl Nb<'_> {
+    /// Kernel gradient of pair `k` w.r.t. the centre particle (1/m^4), bit for bit the
+    /// `(x_a - x_b) g(r)` of the build.
+    #[inline(always)]
+    pub fn g(&self, k: usize) -> Vector3<f64> {
+        let b = self.j[k] as usize;
+        // SAFETY: `build` checks that every target index is below `xt.len()`.
+        let xb = unsafe { self.xt.get_unchecked(b) };
+        (self.xa - xb) * self.gf[k]
+    }
 }
 
 /// Neighbour lists of all dynamic particles.
 #[derive(Clone, Debug, Default)]
 pub struct NeighbourLists {
     chunks: Vec<NbChunk>,
+    /// Query positions at build time.
+    xq: Vec<Vector3<f64>>,
+    /// Target positions by target index at build time (empty: the targets are the queries).
+    xt: Vec<Vector3<f64>>,
 }
 
 impl NeighbourLists {
@@ -52,7 +77,8 @@ impl NeighbourLists {
         let l = a % CHUNK;
         let s = c.start[l] as usize;
         let e = c.start[l + 1] as usize;
-        Nb { j: &c.j[s..e], w: &c.w[s..e], g: &c.g[s..e], n_fluid: (c.split[l] as usize) - s }
+        let xt = if self.xt.is_empty() { &self.xq } else { &self.xt };
+        Nb { j: &c.j[s..e], w: &c.w[s..e], n_fluid: (c.split[l] as usize) - s, gf: &c.gf[s..e], xa: self.xq[a], xt }
     }
 
     /// Chunk index and the range of particle `a`'s pairs inside that chunk's arrays.
@@ -90,16 +116,21 @@ impl NeighbourLists {
             .map(|c| {
                 c.j.capacity() * 4
                     + c.w.capacity() * 8
-                    + c.g.capacity() * 24
+                    + c.gf.capacity() * 8
                     + (c.start.capacity() + c.split.capacity()) * 4
             })
-            .sum()
+            .sum::<usize>()
+            + (self.xq.capacity() + self.xt.capacity()) * 24
     }
 
     /// Rebuilds the lists of `queries` against the points in `grid`.
     ///
     /// `n_fluid_targets`: target indices below it count as fluid (sorted to the front).
-    /// `exclude_self`: skip the pair (a, a) (when queries and targets are the same set).
+    /// `exclude_self`: skip the pair (a, a); only when queries and targets are the same set
+    /// (the lists then keep one copy of the positions).
+    ///
+    /// # Panics
+    /// If `exclude_self` and the grid holds a different number of points than `queries`.
     pub fn build(
         &mut self,
         queries: &[Vector3<f64>],
@@ -112,6 +143,21 @@ impl NeighbourLists {
         self.chunks.resize_with(nchunks, NbChunk::default);
         self.chunks.truncate(nchunks);
         let h2 = kernel.support() * kernel.support();
+        self.xq.clear();
+        self.xq.extend_from_slice(queries);
+        let targets = grid.sorted_idx.len();
+        if exclude_self {
+            assert_eq!(targets, queries.len(), "exclude_self needs the queries to be the grid's points");
+            debug_assert!(grid.sorted_idx.iter().enumerate().all(|(slot, &b)| grid.point(slot) == queries[b as usize]));
+            self.xt.clear();
+        } else {
+            // Positions by target index, read back from the grid (its indices are a
+            // permutation of 0..targets), so a pair's gradient can be rebuilt from them.
+            self.xt.resize(targets, Vector3::zeros());
+            for (slot, &b) in grid.sorted_idx.iter().enumerate() {
+                self.xt[b as usize] = grid.point(slot);
+            }
+        }
         self.chunks.par_iter_mut().enumerate().for_each(|(ci, ch)| {
             let lo = ci * CHUNK;
             let hi = (lo + CHUNK).min(queries.len());
@@ -173,7 +219,7 @@ impl Fill<'_> {
         ch.split.clear();
         ch.j.clear();
         ch.w.clear();
-        ch.g.clear();
+        ch.gf.clear();
         let grid = self.grid;
         for (k, xa) in queries.iter().enumerate() {
             let a = first + k;
@@ -209,14 +255,14 @@ impl Fill<'_> {
     }
 }
 
-/// Scalar pair evaluation: `d = x_a - x_b`, `W(|d|)`, `grad W = g(|d|) d`.
+/// Scalar pair evaluation: `d = x_a - x_b`, `W(|d|)` and the gradient factor `g(|d|)`.
 fn emit(ch: &mut NbChunk, grid: &Grid, kernel: &CubicKernel, xa: &Vector3<f64>, slots: &[u32]) {
     for &slot in slots {
         let d = xa - grid.point(slot as usize);
         let (w, gf) = kernel.w_and_grad_factor(d.norm_squared().sqrt());
         ch.j.push(grid.sorted_idx[slot as usize]);
         ch.w.push(w);
-        ch.g.push(d * gf);
+        ch.gf.push(gf);
     }
 }
 
@@ -232,13 +278,13 @@ unsafe fn emit_avx2(ch: &mut NbChunk, grid: &Grid, kernel: &CubicKernel, xa: &Ve
     let base = ch.j.len();
     ch.j.reserve(m);
     ch.w.reserve(m);
-    ch.g.reserve(m);
-    let (jo, wo, go) = (ch.j.as_mut_ptr(), ch.w.as_mut_ptr(), ch.g.as_mut_ptr());
+    ch.gf.reserve(m);
+    let (jo, wo, go) = (ch.j.as_mut_ptr(), ch.w.as_mut_ptr(), ch.gf.as_mut_ptr());
     for (q, group) in slots.chunks(4).enumerate() {
         // Lanes past the end repeat the first slot; their results are dropped.
         let mut lane = [group[0]; 4];
         lane[..group.len()].copy_from_slice(group);
-        let (mut w, mut gx, mut gy, mut gz) = ([0.0; 4], [0.0; 4], [0.0; 4], [0.0; 4]);
+        let (mut w, mut g) = ([0.0; 4], [0.0; 4]);
         // SAFETY: the slots index the grid's points, which each coordinate array holds; the
         // writes stay below base + m, within the capacity reserved above.
         unsafe {
@@ -249,14 +295,12 @@ unsafe fn emit_avx2(ch: &mut NbChunk, grid: &Grid, kernel: &CubicKernel, xa: &Ve
             let r2 = _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)), _mm256_mul_pd(dz, dz));
             let (wv, gf) = kernel.w_and_grad_factor_x4(_mm256_sqrt_pd(r2));
             _mm256_storeu_pd(w.as_mut_ptr(), wv);
-            _mm256_storeu_pd(gx.as_mut_ptr(), _mm256_mul_pd(dx, gf));
-            _mm256_storeu_pd(gy.as_mut_ptr(), _mm256_mul_pd(dy, gf));
-            _mm256_storeu_pd(gz.as_mut_ptr(), _mm256_mul_pd(dz, gf));
+            _mm256_storeu_pd(g.as_mut_ptr(), gf);
             for (k, &slot) in group.iter().enumerate() {
                 let at = base + 4 * q + k;
                 *jo.add(at) = *grid.sorted_idx.get_unchecked(slot as usize);
                 *wo.add(at) = w[k];
-                *go.add(at) = Vector3::new(gx[k], gy[k], gz[k]);
+                *go.add(at) = g[k];
             }
         }
     }
@@ -264,7 +308,7 @@ unsafe fn emit_avx2(ch: &mut NbChunk, grid: &Grid, kernel: &CubicKernel, xa: &Ve
     unsafe {
         ch.j.set_len(base + m);
         ch.w.set_len(base + m);
-        ch.g.set_len(base + m);
+        ch.gf.set_len(base + m);
     }
 }
 

@@ -357,7 +357,7 @@ impl<'a> Op<'a> {
             let xak = c.p.x[a] - c.bnd.x[kk];
             let coef =
                 va * LAPLACE_D * mub * (c.rho0_f * c.bnd.volume[kk] / self.rho[a]) / (xak.norm_squared() + self.eps_h);
-            term(kk, coef, &xak, &nbb.g[k]);
+            term(kk, coef, &xak, &nbb.g(k));
         }
     }
 
@@ -538,7 +538,7 @@ pub fn solve(
                 for k in 0..nb.n_fluid {
                     let i = nb.j[k] as usize;
                     // Buoyancy: reaction of the fluid-side skeleton pressure term (lagged).
-                    f -= ((1.0 - phi) * c.vol * c.p.mass[i] * kappa_prev[i]) * nb.g[k];
+                    f -= ((1.0 - phi) * c.vol * c.p.mass[i] * kappa_prev[i]) * nb.g(k);
                 }
                 f += elasticity::force(c, a - nf, &ef.prl) + elasticity::hourglass_force(c, ef, a - nf);
             }
@@ -732,7 +732,7 @@ pub fn explicit_accelerations(
                 for k in 0..nb.n_fluid {
                     let b = nb.j[k] as usize;
                     let xab = xa - c.p.x[b];
-                    sum += (vol[b] * (va - v[b]).dot(&xab) / (xab.norm_squared() + eps_h)) * nb.g[k];
+                    sum += (vol[b] * (va - v[b]).dot(&xab) / (xab.norm_squared() + eps_h)) * nb.g(k);
                 }
                 let mut bsum = Vector3::zeros();
                 if s.boundary_viscosity > 0.0 {
@@ -742,7 +742,7 @@ pub fn explicit_accelerations(
                         let xak = xa - c.bnd.x[kk];
                         bsum += (c.bnd.volume[kk] / dens.rho_ratio[a] * (va - c.bnd.v[kk]).dot(&xak)
                             / (xak.norm_squared() + eps_h))
-                            * nbb.g[k];
+                            * nbb.g(k);
                     }
                 }
                 *acc += LAPLACE_D * (s.viscosity * sum + s.boundary_viscosity * bsum);
@@ -759,7 +759,7 @@ pub fn explicit_accelerations(
                         continue;
                     }
                     let xab = xa - c.p.x[b];
-                    sum += (c.vol * (va - v[b]).dot(&xab) / (xab.norm_squared() + eps_h)) * nb.g[k];
+                    sum += (c.vol * (va - v[b]).dot(&xab) / (xab.norm_squared() + eps_h)) * nb.g(k);
                 }
                 *acc += LAPLACE_D * nu * sum;
             }
@@ -798,7 +798,7 @@ pub fn buoyancy_forces(c: &Ctx, kappa: &[f64]) -> Vec<Vector3<f64>> {
             let mut f = Vector3::zeros();
             for k in 0..nb.n_fluid {
                 let i = nb.j[k] as usize;
-                f -= ((1.0 - phi) * c.vol * c.p.mass[i] * kappa[i]) * nb.g[k];
+                f -= ((1.0 - phi) * c.vol * c.p.mass[i] * kappa[i]) * nb.g(k);
             }
             f
         })

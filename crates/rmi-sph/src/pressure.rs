@@ -93,11 +93,11 @@ fn accel(c: &Ctx, fs: &Factors, a: usize, kappa: &[f64], rho0: &[f64], gb: &[Vec
     let mut acc = Vector3::zeros();
     if c.p.is_fluid(a) {
         for k in 0..nb.n_fluid {
-            acc -= (v * (ka + kappa[nb.j[k] as usize])) * nb.g[k];
+            acc -= (v * (ka + kappa[nb.j[k] as usize])) * nb.g(k);
         }
         for k in nb.n_fluid..nb.j.len() {
             let b = nb.j[k] as usize;
-            acc -= (fs.from_solid[b] * v * ka) * nb.g[k];
+            acc -= (fs.from_solid[b] * v * ka) * nb.g(k);
         }
     } else {
         let r0a = rho0[a];
@@ -109,7 +109,7 @@ fn accel(c: &Ctx, fs: &Factors, a: usize, kappa: &[f64], rho0: &[f64], gb: &[Vec
             let f_ab = fs.solid_pair(c, a, b);
             // x / x is exactly 1: skip the division within one material.
             let ratio = if rho0[b] == r0a { 1.0 } else { rho0[b] / r0a };
-            acc -= (f_ab * v * (ka + ratio * kappa[b])) * nb.g[k];
+            acc -= (f_ab * v * (ka + ratio * kappa[b])) * nb.g(k);
         }
     }
     acc - ka * gb[a]
@@ -124,16 +124,16 @@ fn div(c: &Ctx, fs: &Factors, a: usize, q: &[Vector3<f64>]) -> f64 {
     let mut s = 0.0;
     if c.p.is_fluid(a) {
         for k in 0..nb.n_fluid {
-            s += v * (qa - q[nb.j[k] as usize]).dot(&nb.g[k]);
+            s += v * (qa - q[nb.j[k] as usize]).dot(&nb.g(k));
         }
         for k in nb.n_fluid..nb.j.len() {
             let b = nb.j[k] as usize;
-            s += fs.from_solid[b] * v * (qa - q[b]).dot(&nb.g[k]);
+            s += fs.from_solid[b] * v * (qa - q[b]).dot(&nb.g(k));
         }
     } else {
         for k in nb.n_fluid..nb.j.len() {
             let b = nb.j[k] as usize;
-            s += fs.solid_pair(c, a, b) * v * (qa - q[b]).dot(&nb.g[k]);
+            s += fs.solid_pair(c, a, b) * v * (qa - q[b]).dot(&nb.g(k));
         }
     }
     s
@@ -148,7 +148,7 @@ fn boundary_div(c: &Ctx, a: usize, va: &Vector3<f64>) -> f64 {
     let mut s = 0.0;
     for k in 0..nbb.j.len() {
         let kk = nbb.j[k] as usize;
-        s += c.bnd.volume[kk] * (va - c.bnd.v[kk]).dot(&nbb.g[k]);
+        s += c.bnd.volume[kk] * (va - c.bnd.v[kk]).dot(&nbb.g(k));
     }
     s
 }
@@ -181,7 +181,7 @@ pub fn solve(
             return;
         }
         let nbb = c.nbb.of(a);
-        *gb = (0..nbb.j.len()).map(|k| c.bnd.volume[nbb.j[k] as usize] * nbb.g[k]).fold(Vector3::zeros(), |s, x| s + x);
+        *gb = (0..nbb.j.len()).map(|k| c.bnd.volume[nbb.j[k] as usize] * nbb.g(k)).fold(Vector3::zeros(), |s, x| s + x);
     });
     work.ap.resize(n, Vector3::zeros());
     work.err.resize(n, 0.0);
@@ -278,7 +278,7 @@ fn body_reactions(c: &Ctx, kappa: &[f64]) -> Vec<(Vector3<f64>, Vector3<f64>)> {
                 for k in 0..nbb.j.len() {
                     let kk = nbb.j[k] as usize;
                     let bi = c.bnd.body[kk] as usize;
-                    let f = (c.p.mass[a] * kappa[a] * c.bnd.volume[kk]) * nbb.g[k];
+                    let f = (c.p.mass[a] * kappa[a] * c.bnd.volume[kk]) * nbb.g(k);
                     acc[bi].0 += f;
                     acc[bi].1 += (c.bnd.x[kk] - c.bnd.bodies[bi].state.position).cross(&f);
                 }

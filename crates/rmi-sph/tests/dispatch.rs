@@ -56,7 +56,7 @@ fn list_bits(nb: &NeighbourLists) -> Vec<u64> {
         out.push(l.n_fluid as u64);
         out.extend(l.j.iter().map(|&j| j as u64));
         out.extend(l.w.iter().map(|w| w.to_bits()));
-        out.extend(l.g.iter().flat_map(|g| g.iter().map(|c| c.to_bits())));
+        out.extend((0..l.j.len()).flat_map(|k| l.g(k).iter().map(|c| c.to_bits()).collect::<Vec<_>>()));
     }
     out
 }
