@@ -1,6 +1,7 @@
 //! Runs the SPlisHSPlasH DamBreakModel scene in rmi-sph and prints one JSON line of figures.
 //!
-//! `dambreak --steps 500 --threads 2 --radius 0.0125 [--json]`. Setup is excluded from timing.
+//! `dambreak --steps 500 --threads 2 --radius 0.0125 [--reach N] [--json]`. Setup is excluded from
+//! timing; `--reach` overrides the preset's `SimConfig::neighbour_reach`.
 
 use rmi_benches::{arg, peak_rss_bytes};
 use rmi_sph::{presets, Simulation};
@@ -12,7 +13,8 @@ fn main() {
     let threads: usize = arg(&args, "--threads", 2);
     let radius: f64 = arg(&args, "--radius", 0.0125);
     let json = args.iter().any(|a| a == "--json");
-    let cfg = presets::dam_break(radius);
+    let mut cfg = presets::dam_break(radius);
+    cfg.neighbour_reach = arg(&args, "--reach", cfg.neighbour_reach);
     let mut sim = match Simulation::new(cfg, Some(threads)) {
         Ok(s) => s,
         Err(e) => {

@@ -404,3 +404,67 @@ unsafe fn scan_avx2(grid: &Grid, xa: &Vector3<f64>, h2: f64, slots: &mut Vec<u32
     );
     n
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::bounds;
+
+    fn points(n: usize, seed: u64) -> Vec<Vector3<f64>> {
+        let mut s = seed;
+        let mut r = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        (0..n).map(|_| Vector3::new(r(), 0.5 * r(), 0.4 * r())).collect()
+    }
+
+    /// Every list against brute force: the same neighbours, fluid targets first, `W` and the
+    /// gradient of the kernel at the build positions (bit for bit the scalar evaluation), also
+    /// after the caller has moved its particles (the lists keep their own positions).
+    fn check(queries: &mut [Vector3<f64>], targets: &[Vector3<f64>], same_set: bool, n_fluid: usize) {
+        let kernel = CubicKernel::new(0.09);
+        let h = kernel.support();
+        let (lo, hi) = bounds(targets, h);
+        for reach in 1..=3 {
+            let mut grid = Grid::default();
+            grid.build_with(targets, lo, hi, h, reach);
+            let mut nb = NeighbourLists::default();
+            nb.build(queries, &grid, &kernel, n_fluid, same_set);
+            let at_build = queries.to_vec();
+            // Move the caller's particles: the lists must still describe the build positions.
+            queries.iter_mut().for_each(|x| *x += Vector3::new(0.01, -0.02, 0.03));
+            assert_eq!(nb.len(), queries.len());
+            for (a, xa) in at_build.iter().enumerate() {
+                let l = nb.of(a);
+                let tx = |b: usize| if same_set { at_build[b] } else { targets[b] };
+                let mut found: Vec<usize> = l.j.iter().map(|&b| b as usize).collect();
+                assert!(found[..l.n_fluid].iter().all(|&b| b < n_fluid), "query {a}: fluid first");
+                assert!(found[l.n_fluid..].iter().all(|&b| b >= n_fluid), "query {a}: solid after");
+                for (k, &b) in found.iter().enumerate() {
+                    let d = xa - tx(b);
+                    let (w, gf) = kernel.w_and_grad_factor(d.norm_squared().sqrt());
+                    assert_eq!(l.w[k].to_bits(), w.to_bits(), "query {a}, pair {k}: W");
+                    let g = l.g(k);
+                    assert_eq!(g.map(f64::to_bits), (d * gf).map(f64::to_bits), "query {a}, pair {k}: grad W");
+                    assert!((g - kernel.grad(&d)).norm() <= 1e-12 * kernel.grad(&d).norm().max(1.0));
+                }
+                found.sort_unstable();
+                let brute: Vec<usize> = (0..targets.len())
+                    .filter(|&b| !(same_set && b == a) && (xa - tx(b)).norm_squared() < h * h)
+                    .collect();
+                assert_eq!(found, brute, "query {a}, reach {reach}");
+            }
+            queries.copy_from_slice(&at_build);
+        }
+    }
+
+    #[test]
+    fn lists_match_brute_force_with_their_own_positions() {
+        let mut pts = points(1500, 7);
+        let targets = pts.clone();
+        check(&mut pts, &targets, true, 900);
+        let mut queries = points(700, 11);
+        check(&mut queries, &points(1200, 13), false, 400);
+    }
+}
