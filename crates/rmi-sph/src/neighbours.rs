@@ -221,18 +221,39 @@ impl Fill<'_> {
         ch.w.clear();
         ch.gf.clear();
         let grid = self.grid;
+        let all_fluid = self.n_fluid_targets >= grid.sorted_idx.len();
+        let one_side = all_fluid || self.n_fluid_targets == 0;
         for (k, xa) in queries.iter().enumerate() {
             let a = first + k;
             ch.start.push(ch.j.len() as u32);
             let n = scan(xa, &mut self.slots);
             self.fluid.clear();
             self.solid.clear();
-            for &slot in &self.slots[..n] {
-                let b = grid.sorted_idx[slot as usize] as usize;
-                if self.exclude_self && b == a {
-                    continue;
+            if one_side {
+                // Every target on one side (water only, or the walls): the split is a copy
+                // without the query's own slot, found by a compare-only search.
+                let found = &self.slots[..n];
+                let own = if self.exclude_self {
+                    found.iter().position(|&slot| grid.sorted_idx[slot as usize] as usize == a)
+                } else {
+                    None
+                };
+                let side = if all_fluid { &mut self.fluid } else { &mut self.solid };
+                match own {
+                    Some(p) => {
+                        side.extend_from_slice(&found[..p]);
+                        side.extend_from_slice(&found[p + 1..]);
+                    }
+                    None => side.extend_from_slice(found),
                 }
-                if b < self.n_fluid_targets { &mut self.fluid } else { &mut self.solid }.push(slot);
+            } else {
+                for &slot in &self.slots[..n] {
+                    let b = grid.sorted_idx[slot as usize] as usize;
+                    if self.exclude_self && b == a {
+                        continue;
+                    }
+                    if b < self.n_fluid_targets { &mut self.fluid } else { &mut self.solid }.push(slot);
+                }
             }
             emit(ch, xa, &self.fluid);
             ch.split.push(ch.j.len() as u32);
@@ -276,33 +297,38 @@ unsafe fn emit_avx2(ch: &mut NbChunk, grid: &Grid, kernel: &CubicKernel, xa: &Ve
     let (ax, ay, az) = (_mm256_set1_pd(xa.x), _mm256_set1_pd(xa.y), _mm256_set1_pd(xa.z));
     let m = slots.len();
     let base = ch.j.len();
-    ch.j.reserve(m);
-    ch.w.reserve(m);
-    ch.gf.reserve(m);
+    // Whole groups of four are stored, so up to three entries past the end are written (and
+    // left beyond the length, overwritten by the next query's pairs).
+    ch.j.reserve(m + 3);
+    ch.w.reserve(m + 3);
+    ch.gf.reserve(m + 3);
     let (jo, wo, go) = (ch.j.as_mut_ptr(), ch.w.as_mut_ptr(), ch.gf.as_mut_ptr());
-    for (q, group) in slots.chunks(4).enumerate() {
-        // Lanes past the end repeat the first slot; their results are dropped.
-        let mut lane = [group[0]; 4];
-        lane[..group.len()].copy_from_slice(group);
-        let (mut w, mut g) = ([0.0; 4], [0.0; 4]);
-        // SAFETY: the slots index the grid's points, which each coordinate array holds; the
-        // writes stay below base + m, within the capacity reserved above.
+    let order = grid.sorted_idx.as_ptr() as *const i32;
+    let mut i = 0;
+    while i < m {
+        // A last, partial group repeats its first slot in the missing lanes.
+        let idx = if m - i >= 4 {
+            // SAFETY: four slots from i are inside `slots`.
+            unsafe { _mm_loadu_si128(slots.as_ptr().add(i) as *const __m128i) }
+        } else {
+            let mut lane = [slots[i]; 4];
+            lane[..m - i].copy_from_slice(&slots[i..]);
+            // SAFETY: a plain load of a local array.
+            unsafe { _mm_loadu_si128(lane.as_ptr() as *const __m128i) }
+        };
+        // SAFETY: the slots index the grid's points, which each coordinate array and the
+        // sorted indices hold; the stores stay below base + m + 3, within the reserved capacity.
         unsafe {
-            let idx = _mm_loadu_si128(lane.as_ptr() as *const __m128i);
             let dx = _mm256_sub_pd(ax, _mm256_i32gather_pd::<8>(sx.as_ptr(), idx));
             let dy = _mm256_sub_pd(ay, _mm256_i32gather_pd::<8>(sy.as_ptr(), idx));
             let dz = _mm256_sub_pd(az, _mm256_i32gather_pd::<8>(sz.as_ptr(), idx));
             let r2 = _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)), _mm256_mul_pd(dz, dz));
             let (wv, gf) = kernel.w_and_grad_factor_x4(_mm256_sqrt_pd(r2));
-            _mm256_storeu_pd(w.as_mut_ptr(), wv);
-            _mm256_storeu_pd(g.as_mut_ptr(), gf);
-            for (k, &slot) in group.iter().enumerate() {
-                let at = base + 4 * q + k;
-                *jo.add(at) = *grid.sorted_idx.get_unchecked(slot as usize);
-                *wo.add(at) = w[k];
-                *go.add(at) = g[k];
-            }
+            _mm256_storeu_pd(wo.add(base + i), wv);
+            _mm256_storeu_pd(go.add(base + i), gf);
+            _mm_storeu_si128(jo.add(base + i) as *mut __m128i, _mm_i32gather_epi32::<4>(order, idx));
         }
+        i += 4;
     }
     // SAFETY: the first base + m entries are initialised (the old ones and those just written).
     unsafe {
