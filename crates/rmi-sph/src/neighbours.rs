@@ -305,25 +305,13 @@ unsafe fn emit_avx2(ch: &mut NbChunk, grid: &Grid, kernel: &CubicKernel, xa: &Ve
     let (jo, wo, go) = (ch.j.as_mut_ptr(), ch.w.as_mut_ptr(), ch.gf.as_mut_ptr());
     let mut i = 0;
     while i < m {
-        // A last, partial group repeats its first slot in the missing lanes.
-        let idx = if m - i >= 4 {
-            // SAFETY: four slots from i are inside `slots`.
-            unsafe { _mm_loadu_si128(slots.as_ptr().add(i) as *const __m128i) }
-        } else {
-            let mut lane = [slots[i]; 4];
-            lane[..m - i].copy_from_slice(&slots[i..]);
-            // SAFETY: a plain load of a local array.
-            unsafe { _mm_loadu_si128(lane.as_ptr() as *const __m128i) }
-        };
+        // A last, partial group repeats its last slot in the missing lanes (results dropped).
+        let [s0, s1, s2, s3] = [0, 1, 2, 3].map(|q| slots[(i + q).min(m - 1)] as usize);
         // SAFETY: the slots index the grid's points, which each coordinate array and the
         // sorted indices hold; the stores stay below base + m + 3, within the reserved capacity.
         unsafe {
             // Four scalar loads per coordinate rather than a gather instruction: measured a
             // few per cent faster on the Zen 3 machine of benches/RESULTS.md.
-            let s0 = _mm_extract_epi32::<0>(idx) as usize;
-            let s1 = _mm_extract_epi32::<1>(idx) as usize;
-            let s2 = _mm_extract_epi32::<2>(idx) as usize;
-            let s3 = _mm_extract_epi32::<3>(idx) as usize;
             let lanes = |a: &[f64]| {
                 _mm256_set_pd(*a.get_unchecked(s3), *a.get_unchecked(s2), *a.get_unchecked(s1), *a.get_unchecked(s0))
             };
