@@ -2,6 +2,7 @@
 
 use crate::ctx::Ctx;
 use nalgebra::Vector3;
+use rayon::prelude::*;
 
 /// Lower clamp of the fluid's local porosity where it divides (physics.md sec. 7.3).
 pub const MIN_LOCAL_POROSITY: f64 = 0.05;
@@ -25,91 +26,102 @@ pub struct DensityFields {
 /// Computes densities, alpha, local porosity and saturation for every dynamic particle.
 pub fn compute(c: &Ctx, out: &mut DensityFields) {
     let n = c.p.len();
-    let nf = c.p.n_fluid;
-    let mut rows: Vec<(f64, f64, f64, f64, f64)> = vec![(0.0, 0.0, 0.0, 0.0, 0.0); n];
-    crate::par::for_each_hot(
-        &mut rows,
-        #[inline(always)]
-        |a, row| {
-            let nb = c.nb.of(a);
-            let nbb = c.nbb.of(a);
-            let v = c.vol;
-            let fluid = a < nf;
-            let self_factor = if fluid { 1.0 } else { c.volume_factor(a, a) };
-            let mut dens = self_factor * v * c.kernel.w0();
-            let mut grad_sum = Vector3::zeros();
-            let mut grad_sq = 0.0;
-            let mut solid_cover = 0.0; // sum over solids (1-phi) V W, for fluid porosity
-            let mut skeleton_cover = 0.0; // sum over solids V W
-            let mut fluid_sum = 0.0; // sum over fluid V W, for saturation
-            let mut same_shepard = v * c.kernel.w0(); // same-object sum V W, self included
-
-            // Fluid-fluid pairs have f = 1 (most pairs of a water scene): no material lookup.
-            // `1 * v * w` is `v * w` exactly, so this is the general loop below to the bit.
-            let mut first = 0;
-            if fluid {
-                for k in 0..nb.n_fluid {
-                    dens += v * nb.w[k];
-                    let gv = v * nb.g(k);
-                    grad_sum += gv;
-                    grad_sq += gv.norm_squared();
-                }
-                first = nb.n_fluid;
-            }
-            for k in first..nb.j.len() {
-                let b = nb.j[k] as usize;
-                let f = c.volume_factor(a, b);
-                dens += f * v * nb.w[k];
-                let gv = f * v * nb.g(k);
-                grad_sum += gv;
-                grad_sq += gv.norm_squared();
-                if fluid {
-                    if k >= nb.n_fluid {
-                        solid_cover += f * v * nb.w[k];
-                        skeleton_cover += v * nb.w[k];
-                    }
-                } else if k < nb.n_fluid {
-                    fluid_sum += v * nb.w[k];
-                } else if c.p.material[b] == c.p.material[a] {
-                    same_shepard += v * nb.w[k];
-                }
-            }
-            let mut bcover = 0.0;
-            // Bodies act on the skeleton only through contact constraints (contact.rs): boundary
-            // density under a compressible skeleton would make it float on pressure instead.
-            let nbb_len = if fluid { nbb.j.len() } else { 0 };
-            for k in 0..nbb_len {
-                let vk = c.bnd.volume[nbb.j[k] as usize];
-                dens += vk * nbb.w[k];
-                bcover += vk * nbb.w[k];
-                grad_sum += vk * nbb.g(k);
-            }
-            let denom = grad_sum.norm_squared() + grad_sq;
-            let alpha = if denom > 1e-5 { 1.0 / denom } else { 0.0 };
-            let (porosity, saturation) = if fluid {
-                (1.0 - solid_cover - bcover, 0.0)
-            } else {
-                // Saturation = water volume / current pore volume within the kernel. The rest
-                // Shepard sum is the kernel coverage; compaction raises the current one.
-                let s = a - nf;
-                let phi = c.object(a).material.porosity;
-                let cover0 = c.rest.shepard0[s];
-                let cur_phi = (1.0 - (1.0 - phi) * same_shepard / cover0).max(MIN_LOCAL_POROSITY);
-                (cur_phi, (fluid_sum / (cover0 * cur_phi)).min(1.0))
-            };
-            *row = (dens, alpha, porosity, saturation, skeleton_cover);
-        },
-    );
-    out.rho_ratio.clear();
-    out.alpha.clear();
-    out.porosity.clear();
-    out.saturation.clear();
-    out.skeleton_cover.clear();
-    for r in rows {
-        out.skeleton_cover.push(r.4);
-        out.rho_ratio.push(r.0);
-        out.alpha.push(r.1);
-        out.porosity.push(r.2);
-        out.saturation.push(r.3);
+    for field in [&mut out.rho_ratio, &mut out.alpha, &mut out.porosity, &mut out.saturation, &mut out.skeleton_cover] {
+        field.resize(n, 0.0);
     }
+    // Each field written in place by its chunk's thread (no staging array, no serial unpack).
+    let hc = crate::par::HOT_CHUNK;
+    (
+        out.rho_ratio.par_chunks_mut(hc),
+        out.alpha.par_chunks_mut(hc),
+        out.porosity.par_chunks_mut(hc),
+        out.saturation.par_chunks_mut(hc),
+        out.skeleton_cover.par_chunks_mut(hc),
+    )
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(ci, (rho, alpha, phi, sat, cover))| {
+            crate::cpu::hot(
+                #[inline(always)]
+                || {
+                    for k in 0..rho.len() {
+                        (rho[k], alpha[k], phi[k], sat[k], cover[k]) = particle(c, ci * hc + k);
+                    }
+                },
+            )
+        });
+}
+
+/// Density ratio, alpha, porosity, saturation and skeleton coverage of particle `a` (the
+/// fields of [`DensityFields`], in that order).
+#[inline(always)]
+fn particle(c: &Ctx, a: usize) -> (f64, f64, f64, f64, f64) {
+    let nf = c.p.n_fluid;
+    let nb = c.nb.of(a);
+    let nbb = c.nbb.of(a);
+    let v = c.vol;
+    let fluid = a < nf;
+    let self_factor = if fluid { 1.0 } else { c.volume_factor(a, a) };
+    let mut dens = self_factor * v * c.kernel.w0();
+    let mut grad_sum = Vector3::zeros();
+    let mut grad_sq = 0.0;
+    let mut solid_cover = 0.0; // sum over solids (1-phi) V W, for fluid porosity
+    let mut skeleton_cover = 0.0; // sum over solids V W
+    let mut fluid_sum = 0.0; // sum over fluid V W, for saturation
+    let mut same_shepard = v * c.kernel.w0(); // same-object sum V W, self included
+
+    // Fluid-fluid pairs have f = 1 (most pairs of a water scene): no material lookup.
+    // `1 * v * w` is `v * w` exactly, so this is the general loop below to the bit.
+    let mut first = 0;
+    if fluid {
+        for k in 0..nb.n_fluid {
+            dens += v * nb.w[k];
+            let gv = v * nb.g(k);
+            grad_sum += gv;
+            grad_sq += gv.norm_squared();
+        }
+        first = nb.n_fluid;
+    }
+    for k in first..nb.j.len() {
+        let b = nb.j[k] as usize;
+        let f = c.volume_factor(a, b);
+        dens += f * v * nb.w[k];
+        let gv = f * v * nb.g(k);
+        grad_sum += gv;
+        grad_sq += gv.norm_squared();
+        if fluid {
+            if k >= nb.n_fluid {
+                solid_cover += f * v * nb.w[k];
+                skeleton_cover += v * nb.w[k];
+            }
+        } else if k < nb.n_fluid {
+            fluid_sum += v * nb.w[k];
+        } else if c.p.material[b] == c.p.material[a] {
+            same_shepard += v * nb.w[k];
+        }
+    }
+    let mut bcover = 0.0;
+    // Bodies act on the skeleton only through contact constraints (contact.rs): boundary
+    // density under a compressible skeleton would make it float on pressure instead.
+    let nbb_len = if fluid { nbb.j.len() } else { 0 };
+    for k in 0..nbb_len {
+        let vk = c.bnd.volume[nbb.j[k] as usize];
+        dens += vk * nbb.w[k];
+        bcover += vk * nbb.w[k];
+        grad_sum += vk * nbb.g(k);
+    }
+    let denom = grad_sum.norm_squared() + grad_sq;
+    let alpha = if denom > 1e-5 { 1.0 / denom } else { 0.0 };
+    let (porosity, saturation) = if fluid {
+        (1.0 - solid_cover - bcover, 0.0)
+    } else {
+        // Saturation = water volume / current pore volume within the kernel. The rest
+        // Shepard sum is the kernel coverage; compaction raises the current one.
+        let s = a - nf;
+        let phi = c.object(a).material.porosity;
+        let cover0 = c.rest.shepard0[s];
+        let cur_phi = (1.0 - (1.0 - phi) * same_shepard / cover0).max(MIN_LOCAL_POROSITY);
+        (cur_phi, (fluid_sum / (cover0 * cur_phi)).min(1.0))
+    };
+    (dens, alpha, porosity, saturation, skeleton_cover)
 }

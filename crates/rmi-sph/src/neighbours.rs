@@ -57,6 +57,17 @@ impl Nb<'_> {
         let xb = unsafe { self.xt.get_unchecked(b) };
         (self.xa - xb) * self.gf[k]
     }
+
+    /// `x_a - x_b` of pair `k` at the build positions (m) and the pair's gradient factor
+    /// (1/m^5): `g(k)` is their product. For passes that need the distance vector too,
+    /// so that they read each neighbour's position once.
+    #[inline(always)]
+    pub fn d_and_gf(&self, k: usize) -> (Vector3<f64>, f64) {
+        let b = self.j[k] as usize;
+        // SAFETY: as in `g`.
+        let xb = unsafe { self.xt.get_unchecked(b) };
+        (self.xa - xb, self.gf[k])
+    }
 }
 
 /// Neighbour lists of all dynamic particles.
@@ -67,6 +78,8 @@ pub struct NeighbourLists {
     xq: Vec<Vector3<f64>>,
     /// Target positions by target index at build time (empty: the targets are the queries).
     xt: Vec<Vector3<f64>>,
+    /// [`Grid::build_id`] of the grid `xt` was read from (0: none).
+    xt_grid: u64,
 }
 
 impl NeighbourLists {
@@ -150,13 +163,16 @@ impl NeighbourLists {
             assert_eq!(targets, queries.len(), "exclude_self needs the queries to be the grid's points");
             debug_assert!(grid.sorted_idx.iter().enumerate().all(|(slot, &b)| grid.point(slot) == queries[b as usize]));
             self.xt.clear();
-        } else {
+            self.xt_grid = 0;
+        } else if self.xt_grid != grid.build_id() || self.xt.len() != targets {
             // Positions by target index, read back from the grid (its indices are a
             // permutation of 0..targets), so a pair's gradient can be rebuilt from them.
+            // Kept while the grid is not rebuilt (static walls).
             self.xt.resize(targets, Vector3::zeros());
             for (slot, &b) in grid.sorted_idx.iter().enumerate() {
                 self.xt[b as usize] = grid.point(slot);
             }
+            self.xt_grid = grid.build_id();
         }
         self.chunks.par_iter_mut().enumerate().for_each(|(ci, ch)| {
             let lo = ci * CHUNK;

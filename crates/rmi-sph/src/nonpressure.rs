@@ -729,10 +729,12 @@ pub fn explicit_accelerations(
                     return;
                 }
                 let mut sum = Vector3::zeros();
+                // The lists' own copy of the positions (the current ones, the lists were built
+                // this step): one position read per pair instead of two.
                 for k in 0..nb.n_fluid {
                     let b = nb.j[k] as usize;
-                    let xab = xa - c.p.x[b];
-                    sum += (vol[b] * (va - v[b]).dot(&xab) / (xab.norm_squared() + eps_h)) * nb.g(k);
+                    let (xab, gf) = nb.d_and_gf(k);
+                    sum += (vol[b] * (va - v[b]).dot(&xab) / (xab.norm_squared() + eps_h)) * (xab * gf);
                 }
                 let mut bsum = Vector3::zeros();
                 if s.boundary_viscosity > 0.0 {
@@ -758,8 +760,8 @@ pub fn explicit_accelerations(
                     if c.p.material[b] != c.p.material[a] {
                         continue;
                     }
-                    let xab = xa - c.p.x[b];
-                    sum += (c.vol * (va - v[b]).dot(&xab) / (xab.norm_squared() + eps_h)) * nb.g(k);
+                    let (xab, gf) = nb.d_and_gf(k);
+                    sum += (c.vol * (va - v[b]).dot(&xab) / (xab.norm_squared() + eps_h)) * (xab * gf);
                 }
                 *acc += LAPLACE_D * nu * sum;
             }

@@ -137,6 +137,29 @@ where
     });
 }
 
+/// [`for_each_hot`] over three arrays of equal length: `f(i, &mut a[i], &mut b[i], &mut c[i])`.
+#[inline(always)]
+pub fn for_each_hot3<A, B, C, F>(a: &mut [A], b: &mut [B], c: &mut [C], f: F)
+where
+    A: Send,
+    B: Send,
+    C: Send,
+    F: Fn(usize, &mut A, &mut B, &mut C) + Sync,
+{
+    a.par_chunks_mut(HOT_CHUNK).zip(b.par_chunks_mut(HOT_CHUNK)).zip(c.par_chunks_mut(HOT_CHUNK)).enumerate().for_each(
+        |(ci, ((ca, cb), cc))| {
+            crate::cpu::hot(
+                #[inline(always)]
+                || {
+                    for (k, ((x, y), z)) in ca.iter_mut().zip(cb.iter_mut()).zip(cc.iter_mut()).enumerate() {
+                        f(ci * HOT_CHUNK + k, x, y, z);
+                    }
+                },
+            )
+        },
+    );
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -139,18 +139,25 @@ fn div(c: &Ctx, fs: &Factors, a: usize, q: &[Vector3<f64>]) -> f64 {
     s
 }
 
-/// Boundary part of the velocity divergence, `sum_k V_k (v_a - v_k) . grad W_ak`.
-fn boundary_div(c: &Ctx, a: usize, va: &Vector3<f64>) -> f64 {
+/// The boundary sums of particle `a`, one walk over its wall neighbours: `sum_k V_k grad W_ak`
+/// (1/m, constant within a step) and the boundary part of the velocity divergence,
+/// `sum_k V_k (v_a - v_k) . grad W_ak` (1/s). Both zero for the skeleton: only water feels
+/// boundary pressure, the skeleton meets bodies through contacts.
+#[inline(always)]
+fn boundary_sums(c: &Ctx, a: usize, va: &Vector3<f64>) -> (Vector3<f64>, f64) {
+    let mut gb = Vector3::zeros();
+    let mut s = 0.0;
     if !c.p.is_fluid(a) {
-        return 0.0;
+        return (gb, s);
     }
     let nbb = c.nbb.of(a);
-    let mut s = 0.0;
     for k in 0..nbb.j.len() {
         let kk = nbb.j[k] as usize;
+        let vg = c.bnd.volume[kk] * nbb.g(k);
+        gb += vg;
         s += c.bnd.volume[kk] * (va - c.bnd.v[kk]).dot(&nbb.g(k));
     }
-    s
+    (gb, s)
 }
 
 /// Runs the pressure solve on the predicted velocities `v` (updated in place).
@@ -174,15 +181,6 @@ pub fn solve(
     let dt2 = dt * dt;
     work.source.resize(n, 0.0);
     work.gb.resize(n, Vector3::zeros());
-    work.gb.par_iter_mut().enumerate().for_each(|(a, gb)| {
-        // Only water feels boundary pressure; the skeleton meets bodies through contacts.
-        if !c.p.is_fluid(a) {
-            *gb = Vector3::zeros();
-            return;
-        }
-        let nbb = c.nbb.of(a);
-        *gb = (0..nbb.j.len()).map(|k| c.bnd.volume[nbb.j[k] as usize] * nbb.g(k)).fold(Vector3::zeros(), |s, x| s + x);
-    });
     work.ap.resize(n, Vector3::zeros());
     work.err.resize(n, 0.0);
     let fs = &Factors::new(c);
@@ -190,15 +188,24 @@ pub fn solve(
     {
         let vv: &[Vector3<f64>] = v;
         let source = &mut work.source;
-        source.par_iter_mut().zip(kappa.par_iter_mut()).enumerate().for_each(|(a, (s, ka))| {
-            let rho_adv = dens.rho_ratio[a] + dt * (div(c, fs, a, vv) + boundary_div(c, a, &vv[a]));
-            *s = 1.0 - rho_adv;
-            *ka = if settings.warm_start && rho_adv > 1.0 {
-                settings.warm_start_factor * kappa_dt2[a].min(2.5e-4) / dt2
-            } else {
-                0.0
-            };
-        });
+        let kdt2: &[f64] = kappa_dt2;
+        par::for_each_hot3(
+            source,
+            kappa,
+            &mut work.gb,
+            #[inline(always)]
+            |a, s, ka, gb| {
+                let bdiv;
+                (*gb, bdiv) = boundary_sums(c, a, &vv[a]);
+                let rho_adv = dens.rho_ratio[a] + dt * (div(c, fs, a, vv) + bdiv);
+                *s = 1.0 - rho_adv;
+                *ka = if settings.warm_start && rho_adv > 1.0 {
+                    settings.warm_start_factor * kdt2[a].min(2.5e-4) / dt2
+                } else {
+                    0.0
+                };
+            },
+        );
     }
     let counts: Vec<f64> =
         (0..n_materials).map(|m| c.p.material.iter().filter(|&&x| x as usize == m).count().max(1) as f64).collect();
