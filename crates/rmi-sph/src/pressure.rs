@@ -256,14 +256,16 @@ pub fn solve(
     {
         let kap: &[f64] = kappa;
         let gb = &work.gb;
-        par::for_each_hot(
-            &mut work.ap,
+        par::for_each_hot2(
+            v,
+            kappa_dt2,
             #[inline(always)]
-            |a, ap| *ap = accel(c, fs, a, kap, rho0, gb),
+            |a, va, kt| {
+                *va += dt * accel(c, fs, a, kap, rho0, gb);
+                *kt = kap[a] * dt2;
+            },
         );
     }
-    v.par_iter_mut().zip(work.ap.par_iter()).for_each(|(vi, ap)| *vi += dt * ap);
-    kappa_dt2.par_iter_mut().zip(kappa.par_iter()).for_each(|(kt, k)| *kt = k * dt2);
     let reactions = body_reactions(c, kappa);
     (stats, reactions)
 }
@@ -277,19 +279,10 @@ fn body_reactions(c: &Ctx, kappa: &[f64]) -> Vec<(Vector3<f64>, Vector3<f64>)> {
         .into_par_iter()
         .map(|ci| {
             let mut acc = vec![(Vector3::zeros(), Vector3::zeros()); nbody];
-            for a in ci * chunk..((ci + 1) * chunk).min(n) {
-                if kappa[a] == 0.0 || !c.p.is_fluid(a) {
-                    continue;
-                }
-                let nbb = c.nbb.of(a);
-                for k in 0..nbb.j.len() {
-                    let kk = nbb.j[k] as usize;
-                    let bi = c.bnd.body[kk] as usize;
-                    let f = (c.p.mass[a] * kappa[a] * c.bnd.volume[kk]) * nbb.g(k);
-                    acc[bi].0 += f;
-                    acc[bi].1 += (c.bnd.x[kk] - c.bnd.bodies[bi].state.position).cross(&f);
-                }
-            }
+            crate::cpu::hot(
+                #[inline(always)]
+                || body_reactions_of(c, kappa, ci * chunk..((ci + 1) * chunk).min(n), &mut acc),
+            );
             acc
         })
         .collect();
@@ -301,4 +294,22 @@ fn body_reactions(c: &Ctx, kappa: &[f64]) -> Vec<(Vector3<f64>, Vector3<f64>)> {
         }
     }
     out
+}
+
+/// Adds the loads of the particles in `range` to `acc` (per body), in particle and list order.
+#[inline(always)]
+fn body_reactions_of(c: &Ctx, kappa: &[f64], range: std::ops::Range<usize>, acc: &mut [BodyLoad]) {
+    for a in range {
+        if kappa[a] == 0.0 || !c.p.is_fluid(a) {
+            continue;
+        }
+        let nbb = c.nbb.of(a);
+        for k in 0..nbb.j.len() {
+            let kk = nbb.j[k] as usize;
+            let bi = c.bnd.body[kk] as usize;
+            let f = (c.p.mass[a] * kappa[a] * c.bnd.volume[kk]) * nbb.g(k);
+            acc[bi].0 += f;
+            acc[bi].1 += (c.bnd.x[kk] - c.bnd.bodies[bi].state.position).cross(&f);
+        }
+    }
 }

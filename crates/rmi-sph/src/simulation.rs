@@ -423,7 +423,6 @@ impl Simulation {
         let v_old = self.p.v.clone();
         let kappa_dt2_old = self.kappa_dt2.clone();
         let mut v = self.p.v.clone();
-        let kappa_prev: Vec<f64> = self.kappa_dt2.iter().map(|k| k / (dt * dt)).collect();
         let g = Vector3::from(cfg.gravity);
         // Skeleton-body contacts enter the implicit solve as velocity constraints, so that
         // the contact force is the constraint reaction of the stiff elastic system.
@@ -433,6 +432,7 @@ impl Simulation {
         let cons: Vec<_> = detected.iter().map(|d| d.0).collect();
         let system = implicit.then(|| nonpressure::Op::new(&ctx, &self.dens, &self.ef, &nps, &cons));
         let cg = if let Some(op) = &system {
+            let kappa_prev: Vec<f64> = self.kappa_dt2.iter().map(|k| k / (dt * dt)).collect();
             let (cg, impulses) = nonpressure::solve(op, &kappa_prev, &g, &mut v, &mut self.dv_prev, &mut self.cgwork);
             for ((con, body, point), j) in detected.iter().zip(impulses) {
                 contacts.push(Contact {
