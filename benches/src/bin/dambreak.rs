@@ -26,6 +26,7 @@ fn main() {
     let mut iters = 0u64;
     let mut phase = [0.0f64; 6];
     let mut err_sum = 0.0;
+    let mut pairs = 0u64;
     let t0 = Instant::now();
     for i in 0..steps {
         if let Err(e) = sim.step() {
@@ -35,6 +36,7 @@ fn main() {
         let st = sim.stats();
         iters += st.pressure.iterations as u64;
         err_sum += st.pressure.error[0];
+        pairs += st.neighbour_pairs as u64;
         for (acc, sec) in phase.iter_mut().zip(st.seconds) {
             *acc += sec;
         }
@@ -62,6 +64,7 @@ fn main() {
         "ms_per_pressure_iteration": 1e3 * phase[3] / iters.max(1) as f64,
         "particle_steps_per_s": nf as f64 * steps as f64 / wall,
         "mean_density_error": err_sum / steps as f64,
+        "mean_neighbours_per_particle": pairs as f64 / (steps.max(1) * nf.max(1) as u64) as f64,
         "phase_ms_per_step": {
             "neighbours": 1e3 * phase[0] / steps as f64,
             "fields": 1e3 * phase[1] / steps as f64,
