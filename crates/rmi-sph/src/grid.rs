@@ -309,6 +309,36 @@ mod tests {
         }
     }
 
+    /// The split scatter gives the order of a serial stable sort by cell (index order within a
+    /// cell), for point sets where some of its four parts are empty or hold one crowded cell,
+    /// and on 1 and 2 threads.
+    #[test]
+    fn sorted_order_is_a_stable_sort_by_cell() {
+        let mut s = 777u64;
+        let mut r = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let spread: Vec<Vector3<f64>> = (0..3000).map(|_| Vector3::new(r(), r(), 0.3 * r())).collect();
+        let crowded: Vec<Vector3<f64>> = (0..500)
+            .map(|i| if i % 5 == 0 { Vector3::new(0.9, 0.9, 0.9) } else { Vector3::new(0.01, 0.02, 0.03) })
+            .collect();
+        for pts in [spread, crowded, vec![Vector3::new(0.5, 0.5, 0.5)], Vec::new()] {
+            let (lo, hi) = bounds(&pts, 0.05);
+            for threads in [1, 2] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                let mut g = Grid::default();
+                pool.install(|| g.build_with(&pts, lo, hi, 0.05, 2));
+                let mut want: Vec<u32> = (0..pts.len() as u32).collect();
+                want.sort_by_key(|&i| g.cell_index(&pts[i as usize]));
+                assert_eq!(g.sorted_idx, want, "{} points, {threads} threads", pts.len());
+                for (slot, &i) in g.sorted_idx.iter().enumerate() {
+                    assert_eq!(g.point(slot), pts[i as usize]);
+                }
+            }
+        }
+    }
+
     #[test]
     fn near_flags_skip_only_empty_neighbourhoods() {
         // Sparse points on two faces of a box (like walls), dense queries everywhere.

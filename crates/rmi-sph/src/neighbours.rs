@@ -52,10 +52,8 @@ impl Nb<'_> {
     /// `(x_a - x_b) g(r)` of the build.
     #[inline(always)]
     pub fn g(&self, k: usize) -> Vector3<f64> {
-        let b = self.j[k] as usize;
-        // SAFETY: `build` checks that every target index is below `xt.len()`.
-        let xb = unsafe { self.xt.get_unchecked(b) };
-        (self.xa - xb) * self.gf[k]
+        let (d, gf) = self.d_and_gf(k);
+        d * gf
     }
 
     /// `x_a - x_b` of pair `k` at the build positions (m) and the pair's gradient factor
@@ -64,7 +62,7 @@ impl Nb<'_> {
     #[inline(always)]
     pub fn d_and_gf(&self, k: usize) -> (Vector3<f64>, f64) {
         let b = self.j[k] as usize;
-        // SAFETY: as in `g`.
+        // SAFETY: `build` checks that every target index is below `xt.len()`.
         let xb = unsafe { self.xt.get_unchecked(b) };
         (self.xa - xb, self.gf[k])
     }

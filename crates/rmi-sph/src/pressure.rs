@@ -195,8 +195,8 @@ pub fn solve(
             &mut work.gb,
             #[inline(always)]
             |a, s, ka, gb| {
-                let bdiv;
-                (*gb, bdiv) = boundary_sums(c, a, &vv[a]);
+                let (g, bdiv) = boundary_sums(c, a, &vv[a]);
+                *gb = g;
                 let rho_adv = dens.rho_ratio[a] + dt * (div(c, fs, a, vv) + bdiv);
                 *s = 1.0 - rho_adv;
                 *ka = if settings.warm_start && rho_adv > 1.0 {

@@ -112,8 +112,10 @@ impl Simulation {
             .map_err(|e| RmiError::config("num_threads", threads, format!("a thread count the OS accepts ({e})")))?;
         let kernel = CubicKernel::new(cfg.support());
         let pool = std::sync::Arc::new(pool);
-        let built = pool.install(|| scene::build(&cfg, &kernel));
-        let bnd = Boundary::new(&cfg.scene.bodies, cfg.spacing(), &kernel);
+        // Every parallel pass runs in the simulation's own pool, never in rayon's global one:
+        // a process forked after the global pool started has no workers for it.
+        let (built, bnd) =
+            pool.install(|| (scene::build(&cfg, &kernel), Boundary::new(&cfg.scene.bodies, cfg.spacing(), &kernel)));
         let n = built.particles.len();
         let mut sim = Simulation {
             kernel,
@@ -147,7 +149,8 @@ impl Simulation {
         };
         sim.refresh_rho0();
         sim.contact_active = vec![false; sim.p.n_solid()];
-        sim.rest.hg_k = elasticity::hourglass_constants(&sim.rest, &sim.p, &sim.objects, &sim.kernel);
+        sim.rest.hg_k =
+            sim.pool.install(|| elasticity::hourglass_constants(&sim.rest, &sim.p, &sim.objects, &sim.kernel));
         Ok(sim)
     }
 
@@ -617,8 +620,11 @@ impl Simulation {
         let n = s.particles.len();
         let mut rest_p = s.particles.clone();
         rest_p.x[s.particles.n_fluid..].copy_from_slice(&s.rest_positions);
-        fresh.rest = scene::rest_data(&rest_p, &s.fixed, &fresh.kernel);
-        fresh.rest.hg_k = elasticity::hourglass_constants(&fresh.rest, &rest_p, &fresh.objects, &fresh.kernel);
+        let pool = fresh.pool.clone();
+        pool.install(|| {
+            fresh.rest = scene::rest_data(&rest_p, &s.fixed, &fresh.kernel);
+            fresh.rest.hg_k = elasticity::hourglass_constants(&fresh.rest, &rest_p, &fresh.objects, &fresh.kernel);
+        });
         fresh.p = s.particles;
         fresh.solid = s.solid;
         fresh.kappa_dt2 = s.kappa_dt2;
