@@ -162,7 +162,7 @@ impl NeighbourLists {
             debug_assert!(grid.sorted_idx.iter().enumerate().all(|(slot, &b)| grid.point(slot) == queries[b as usize]));
             self.xt.clear();
             self.xt_grid = 0;
-        } else if self.xt_grid != grid.build_id() || self.xt.len() != targets {
+        } else if self.xt_grid != grid.build_id() {
             // Positions by target index, read back from the grid (its indices are a
             // permutation of 0..targets), so a pair's gradient can be rebuilt from them.
             // Kept while the grid is not rebuilt (static walls).

@@ -153,9 +153,9 @@ fn boundary_sums(c: &Ctx, a: usize, va: &Vector3<f64>) -> (Vector3<f64>, f64) {
     let nbb = c.nbb.of(a);
     for k in 0..nbb.j.len() {
         let kk = nbb.j[k] as usize;
-        let vg = c.bnd.volume[kk] * nbb.g(k);
-        gb += vg;
-        s += c.bnd.volume[kk] * (va - c.bnd.v[kk]).dot(&nbb.g(k));
+        let g = nbb.g(k);
+        gb += c.bnd.volume[kk] * g;
+        s += c.bnd.volume[kk] * (va - c.bnd.v[kk]).dot(&g);
     }
     (gb, s)
 }
