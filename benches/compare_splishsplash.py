@@ -54,7 +54,11 @@ Notes on the SPlisHSPlasH side:
 
 Timings only mean something on an otherwise idle machine: for every run the driver records how
 many CPU cores' worth of work other processes did meanwhile ("other CPU load") and warns when it
-is noticeable.
+is noticeable. A round in which either run saw more than ``OTHER_LOAD_WARN`` cores of it is set
+aside whole (both engines) from the medians, unless ``--keep-noisy`` or no round was quiet. After
+the table the driver prints each round's own ratio (its two runs are back to back, so the
+machine's drift over an evening cancels better than in the ratio of medians) and their median,
+minimum and maximum over the quiet rounds; the JSON keeps them under ``paired``.
 """
 
 from __future__ import annotations
@@ -653,6 +657,85 @@ def ratio(a, b):
     return None
 
 
+def round_load(entry: dict) -> float | None:
+    """The larger other-CPU load of a round's runs (cores), None when neither was measured."""
+    loads = [
+        r.get("other_load")
+        for r in (entry.get("splishsplash"), entry.get("rmi"))
+        if isinstance(r, dict) and isinstance(r.get("other_load"), (int, float))
+    ]
+    return max(loads) if loads else None
+
+
+def quiet_rounds(rounds: list[dict], max_load: float = OTHER_LOAD_WARN) -> list[dict]:
+    """The rounds in which no run saw more than `max_load` cores of other processes' work.
+
+    A round is kept or set aside whole, so that the medians of both engines come from the
+    same stretches of time (the machine's speed drifts; a round's two runs are back to back).
+    """
+    return [e for e in rounds if (round_load(e) or 0.0) <= max_load]
+
+
+def paired(rounds: list[dict], max_load: float = OTHER_LOAD_WARN) -> dict:
+    """Per-round throughput ratios rmi / SPlisHSPlasH and their spread over the quiet rounds.
+
+    The ratio of one round compares two runs made minutes apart, so it is less exposed to the
+    machine's drift over an evening than the ratio of the two engines' medians; its spread
+    over rounds is what a claim about the ratio has to survive.
+    """
+    per_round = []
+    for e in rounds:
+        sph, rmi = e.get("splishsplash"), e.get("rmi")
+        if (
+            not (isinstance(sph, dict) and isinstance(rmi, dict))
+            or "error" in sph
+            or "error" in rmi
+        ):
+            continue
+        r = ratio(rmi.get("particle_steps_per_s"), sph.get("particle_steps_per_s"))
+        if r is None:
+            continue
+        load = round_load(e)
+        per_round.append(
+            {
+                "round": e.get("round"),
+                "ratio": r,
+                "other_load": load,
+                "quiet": (load or 0.0) <= max_load,
+            }
+        )
+    quiet = [p["ratio"] for p in per_round if p["quiet"]]
+    return {
+        "rounds": per_round,
+        "max_other_load": max_load,
+        "quiet_rounds": len(quiet),
+        "set_aside": len(per_round) - len(quiet),
+        "median": statistics.median(quiet) if quiet else None,
+        "min": min(quiet) if quiet else None,
+        "max": max(quiet) if quiet else None,
+    }
+
+
+def print_paired(pairs: dict) -> None:
+    if not pairs["rounds"]:
+        return
+    print()
+    print("per round (rmi / SPlisHSPlasH throughput, the round's two runs back to back):")
+    for p in pairs["rounds"]:
+        note = "" if p["quiet"] else f"  set aside: other load {p['other_load']:.2f} cores"
+        print(f"  round {p['round']}: {p['ratio']:.3f}{note}")
+    if pairs["quiet_rounds"]:
+        print(
+            f"median of {pairs['quiet_rounds']} quiet round(s): {pairs['median']:.3f} "
+            f"(min {pairs['min']:.3f}, max {pairs['max']:.3f}); {pairs['set_aside']} set aside"
+        )
+    else:
+        print(
+            "no quiet round: every round saw other processes' work; "
+            "the ratios above are not trustworthy"
+        )
+
+
 def fmt(value, spec: str) -> str:
     return "n/a" if value is None else format(value, spec)
 
@@ -762,11 +845,20 @@ def drive(args) -> int:
                     print(f"  warning: {entry['rmi']['warning']}", file=sys.stderr)
             rounds.append(entry)
 
-    sph_summary = summarize([r["splishsplash"] for r in rounds if "splishsplash" in r])
-    rmi_summary = summarize([r["rmi"] for r in rounds if "rmi" in r])
+    # The medians come from the quiet rounds unless there is none (or --keep-noisy).
+    used = rounds if args.keep_noisy else (quiet_rounds(rounds) or rounds)
+    if len(used) < len(rounds):
+        print(
+            f"\n{len(rounds) - len(used)} of {len(rounds)} round(s) set aside: other processes "
+            f"used more than {OTHER_LOAD_WARN} CPU cores during a run (--keep-noisy keeps them)"
+        )
+    sph_summary = summarize([r["splishsplash"] for r in used if "splishsplash" in r])
+    rmi_summary = summarize([r["rmi"] for r in used if "rmi" in r])
     if binary is None:
         print(f"\nrmi: not run ({why.splitlines()[0]})")
     ratios = print_table(sph_summary, rmi_summary, args)
+    pairs = paired(rounds)
+    print_paired(pairs)
     if sph_summary and rmi_summary:
         nf_a, nf_b = sph_summary["fluid_particles"], rmi_summary["fluid_particles"]
         if nf_a and nf_b and abs(nf_a - nf_b) > 0.01 * nf_a:
@@ -800,6 +892,8 @@ def drive(args) -> int:
             "rounds": rounds,
             "median": {"splishsplash": sph_summary, "rmi": rmi_summary},
             "ratios": ratios,
+            "paired": pairs,
+            "rounds_in_medians": [r["round"] for r in used],
         }
         out = Path(args.json_out)
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -834,6 +928,13 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--skip-rmi", action="store_true", help="run only the SPlisHSPlasH rounds")
     p.add_argument("--skip-splishsplash", action="store_true", help="run only the rmi rounds")
     p.add_argument("--log-dir", help="keep the engines' stderr logs here")
+    p.add_argument(
+        "--keep-noisy",
+        action="store_true",
+        help="take the medians over every round, also those in which other processes used "
+        f"more than {OTHER_LOAD_WARN} CPU cores (by default such rounds are set aside when a "
+        "quiet one exists)",
+    )
     p.add_argument("--workdir", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.steps < 1 or args.rounds < 1 or args.threads < 1:

@@ -2,14 +2,36 @@
 
 ``synthetic_runs_dir`` and ``synthetic_dataset_dir`` (session-scoped) give run files from the
 toy ODE of ``rmi_learn.synthetic`` and a dataset built from them, for fast tests of the data
-and learning code. Their numbers mean nothing physically.
+and learning code. Their numbers mean nothing physically. ``bench_script`` loads a script of
+``benches/`` as a module, to test its pure functions.
 """
 
 from __future__ import annotations
 
+import importlib.util
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
+
+BENCHES = Path(__file__).resolve().parents[1] / "benches"
+
+
+@pytest.fixture
+def bench_script() -> Callable[[str], Any]:
+    """``bench_script("seed_floor")`` returns ``benches/seed_floor.py`` loaded as a module
+    (``benches/`` is a folder of scripts, not a package)."""
+
+    def load(name: str) -> Any:
+        spec = importlib.util.spec_from_file_location(name, BENCHES / f"{name}.py")
+        assert spec is not None and spec.loader is not None
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        return mod
+
+    return load
+
 
 #: Runs per sponge size in the shared synthetic fixture (3 sizes -> 36 runs, of which 18
 #: complete lift and squeeze and form the dataset; 4 groups per size).
