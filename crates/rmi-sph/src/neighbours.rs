@@ -405,7 +405,7 @@ const COMPRESS: [[u32; 4]; 16] = {
 #[target_feature(enable = "avx,avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
 unsafe fn scan_avx2(grid: &Grid, xa: &Vector3<f64>, h2: f64, slots: &mut Vec<u32>) -> usize {
     use std::arch::x86_64::*;
-    const LANES: [i32; 5] = [0, 1, 3, 7, 15];
+    const LANES: [usize; 4] = [0, 1, 3, 7];
     let [sx, sy, sz] = grid.soa();
     let (ax, ay, az) = (_mm256_set1_pd(xa.x), _mm256_set1_pd(xa.y), _mm256_set1_pd(xa.z));
     let h2v = _mm256_set1_pd(h2);
@@ -419,10 +419,11 @@ unsafe fn scan_avx2(grid: &Grid, xa: &Vector3<f64>, h2: f64, slots: &mut Vec<u32
             }
             // A raw pointer held in a register: through the Vec, every store would reload it.
             let out = slots.as_mut_ptr();
-            let mut i = lo;
-            while i < hi {
+            // The lanes' mask of candidates inside the support, and the slot numbers of the
+            // group's lanes (the running `first` vector saves a broadcast per group).
+            let keep = |i: usize| {
                 // SAFETY: i < hi <= points, and each coordinate array has SOA_PAD >= 3 entries
-                // beyond the points; `slots` has room for 4 more at n (resized above).
+                // beyond the points.
                 unsafe {
                     let dx = _mm256_sub_pd(ax, _mm256_loadu_pd(sx.as_ptr().add(i)));
                     let dy = _mm256_sub_pd(ay, _mm256_loadu_pd(sy.as_ptr().add(i)));
@@ -432,16 +433,28 @@ unsafe fn scan_avx2(grid: &Grid, xa: &Vector3<f64>, h2: f64, slots: &mut Vec<u32
                         _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)),
                         _mm256_mul_pd(dz, dz),
                     );
-                    let keep = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_NGE_UQ>(r2, h2v));
-                    let m = (keep & LANES[(hi - i).min(4)]) as usize;
-                    let idx = _mm_add_epi32(
-                        _mm_set1_epi32(i as i32),
-                        _mm_loadu_si128(COMPRESS[m].as_ptr() as *const __m128i),
-                    );
-                    _mm_storeu_si128(out.add(n) as *mut __m128i, idx);
-                    n += m.count_ones() as usize;
+                    _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_NGE_UQ>(r2, h2v)) as usize
                 }
+            };
+            let put = |n: usize, first: __m128i, m: usize| {
+                // SAFETY: `slots` has room for 4 more at n (resized above), and n only grows
+                // by the accepted candidates of this run.
+                unsafe {
+                    let idx = _mm_add_epi32(first, _mm_loadu_si128(COMPRESS[m].as_ptr() as *const __m128i));
+                    _mm_storeu_si128(out.add(n) as *mut __m128i, idx);
+                }
+                n + m.count_ones() as usize
+            };
+            let mut first = _mm_set1_epi32(lo as i32);
+            let mut i = lo;
+            // Whole groups without a tail mask; the last, partial group masked once.
+            while i + 4 <= hi {
+                n = put(n, first, keep(i));
+                first = _mm_add_epi32(first, _mm_set1_epi32(4));
                 i += 4;
+            }
+            if i < hi {
+                n = put(n, first, keep(i) & LANES[hi - i]);
             }
         },
     );
