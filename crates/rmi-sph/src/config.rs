@@ -219,7 +219,11 @@ pub struct PressureConfig {
     pub omega: f64,
     /// Start from the previous step's pressure.
     pub warm_start: bool,
-    /// Fraction of the previous pressure the warm start uses (the reference code uses 0.5).
+    /// Fraction of the previous pressure the warm start uses (the reference code and
+    /// SPlisHSPlasH's DFSPH use 0.5). Larger values save iterations in fast flows (dam break:
+    /// 3.5 -> 2.2 at 1.0) but the stopping test counts compression only, so a solve that
+    /// starts above the answer can stop over-pressured: resting water then does not settle
+    /// (hydrostatic floor load 2.5 % off at 1.0; benches/RESULTS.md).
     pub warm_start_factor: f64,
     /// Pass the pressure impulse through the implicit operator of the non-pressure solve
     /// (drag, adhesion, viscosity, elasticity) within the step, so that pore water seeps at
