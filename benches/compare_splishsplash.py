@@ -667,13 +667,19 @@ def round_load(entry: dict) -> float | None:
     return max(loads) if loads else None
 
 
+def is_quiet(entry: dict, max_load: float = OTHER_LOAD_WARN) -> bool:
+    """Whether no run of the round saw more than `max_load` cores of other processes' work
+    (a round whose load was not measured counts as quiet)."""
+    return (round_load(entry) or 0.0) <= max_load
+
+
 def quiet_rounds(rounds: list[dict], max_load: float = OTHER_LOAD_WARN) -> list[dict]:
-    """The rounds in which no run saw more than `max_load` cores of other processes' work.
+    """The quiet rounds (see `is_quiet`).
 
     A round is kept or set aside whole, so that the medians of both engines come from the
     same stretches of time (the machine's speed drifts; a round's two runs are back to back).
     """
-    return [e for e in rounds if (round_load(e) or 0.0) <= max_load]
+    return [e for e in rounds if is_quiet(e, max_load)]
 
 
 def paired(rounds: list[dict], max_load: float = OTHER_LOAD_WARN) -> dict:
@@ -685,23 +691,17 @@ def paired(rounds: list[dict], max_load: float = OTHER_LOAD_WARN) -> dict:
     """
     per_round = []
     for e in rounds:
-        sph, rmi = e.get("splishsplash"), e.get("rmi")
-        if (
-            not (isinstance(sph, dict) and isinstance(rmi, dict))
-            or "error" in sph
-            or "error" in rmi
-        ):
-            continue
+        sph, rmi = e.get("splishsplash") or {}, e.get("rmi") or {}
+        # A failed or missing run has no throughput, so `ratio` gives None.
         r = ratio(rmi.get("particle_steps_per_s"), sph.get("particle_steps_per_s"))
-        if r is None:
+        if r is None or "error" in sph or "error" in rmi:
             continue
-        load = round_load(e)
         per_round.append(
             {
                 "round": e.get("round"),
                 "ratio": r,
-                "other_load": load,
-                "quiet": (load or 0.0) <= max_load,
+                "other_load": round_load(e),
+                "quiet": is_quiet(e, max_load),
             }
         )
     quiet = [p["ratio"] for p in per_round if p["quiet"]]

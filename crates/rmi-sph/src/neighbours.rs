@@ -405,7 +405,6 @@ const COMPRESS: [[u32; 4]; 16] = {
 #[target_feature(enable = "avx,avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
 unsafe fn scan_avx2(grid: &Grid, xa: &Vector3<f64>, h2: f64, slots: &mut Vec<u32>) -> usize {
     use std::arch::x86_64::*;
-    const LANES: [usize; 4] = [0, 1, 3, 7];
     let [sx, sy, sz] = grid.soa();
     let (ax, ay, az) = (_mm256_set1_pd(xa.x), _mm256_set1_pd(xa.y), _mm256_set1_pd(xa.z));
     let h2v = _mm256_set1_pd(h2);
@@ -454,7 +453,7 @@ unsafe fn scan_avx2(grid: &Grid, xa: &Vector3<f64>, h2: f64, slots: &mut Vec<u32
                 i += 4;
             }
             if i < hi {
-                n = put(n, first, keep(i) & LANES[hi - i]);
+                n = put(n, first, keep(i) & ((1 << (hi - i)) - 1));
             }
         },
     );
