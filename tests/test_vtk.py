@@ -99,7 +99,33 @@ def test_simulate_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     frames = sorted((out / "frames").glob("particles_*.vtp"))
     assert len(frames) == 1 + -(-outcome["steps"] // 100)
     assert json.loads((out / "config.json").read_text()) == cfg
-    # Bad configs are reported, not raised.
+    # Bad configs are reported, not raised, with the input-error status 2.
     cfg_path.write_text(json.dumps({"dt": -1.0}))
-    assert main(["simulate", "--config", str(cfg_path), "--out", str(out)]) == 1
+    assert main(["simulate", "--config", str(cfg_path), "--out", str(out)]) == 2
     assert "dt" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("argv", "names"),
+    [
+        (["--size", "8", "--porosity", "1.5"], "porosity"),
+        (["--size", "8", "--hold", "nan"], "hold_force"),
+        (["--config", "{missing}"], "No such file"),
+        (["--config", "{garbage}"], "garbage.json: not valid JSON"),
+        (["--config", "{bad_value}"], "dt"),
+    ],
+)
+def test_simulate_rejects_bad_input_without_writing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: list[str], names: str
+) -> None:
+    # A flag out of range, a missing or malformed config file, a config value out of range:
+    # one line naming the problem, status 2, no traceback, and no output directory left.
+    (tmp_path / "garbage.json").write_text("{not json")
+    (tmp_path / "bad_value.json").write_text(json.dumps({"dt": -1.0}))
+    files = {k: str(tmp_path / f"{k}.json") for k in ("missing", "garbage", "bad_value")}
+    out = tmp_path / "out"
+    code = main(["simulate", *[a.format(**files) for a in argv], "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.startswith("rmi simulate: ") and names in err and "Traceback" not in err
+    assert not out.exists()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import json
 import sys
 
 #: command name -> (module under rmi_learn.commands, one-line help)
@@ -56,7 +57,24 @@ def main(argv: list[str] | None = None) -> int:
         print(f"rmi {args.command}: not available in this build", file=sys.stderr)
         return 2
     mod = importlib.import_module(f"rmi_learn.commands.{args._module}")
-    return int(mod.run(args) or 0)
+    try:
+        return int(mod.run(args) or 0)
+    except Exception as exc:
+        if not _is_input_error(exc):
+            raise
+        print(f"rmi {args.command}: {exc}", file=sys.stderr)
+        return 2
+
+
+def _is_input_error(exc: Exception) -> bool:
+    """Whether ``exc`` says the user's input is wrong (a path that is missing or unreadable,
+    a file that is not JSON, a config value out of range) rather than that the code is: such
+    errors end the command with their message and exit status 2, where a bug keeps its
+    traceback. Commands report their own errors first; this is the net under them."""
+    import rmi_sph
+
+    paths = (FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError)
+    return isinstance(exc, (*paths, PermissionError, json.JSONDecodeError, rmi_sph.ConfigError))
 
 
 if __name__ == "__main__":

@@ -308,9 +308,12 @@ def build_dataset(
     recursively for ``run.parquet``) into ``out_dir`` and return ``out_dir``.
 
     See the module docstring for the selection, resampling, split and statistics rules.
-    Raises ValueError if no run qualifies or the training split is empty.
+    Raises FileNotFoundError if ``run_dir`` is not a directory, ValueError if no run
+    qualifies or the training split is empty.
     """
     run_dir, out = Path(run_dir), Path(out_dir)
+    if not run_dir.is_dir():
+        raise FileNotFoundError(f"{run_dir} is not a directory of runs")
     kept, counts = _collect(run_dir)
     if not kept:
         raise ValueError(f"no run under {run_dir} completed lift and squeeze with a stable grasp")

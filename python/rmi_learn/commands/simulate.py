@@ -89,9 +89,10 @@ def simulate(
     from rmi_learn.vtk import FrameWriter
 
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
+    # The config is validated before anything is written: a rejected one leaves no directory.
     sim = rmi_sph.Simulation(config, num_threads=num_threads, record=True)
+    out.mkdir(parents=True, exist_ok=True)
     cfg = sim.config
     atomic_write_json(out / "config.json", cfg)
     writer = (
@@ -119,13 +120,20 @@ def simulate(
 def run(args: argparse.Namespace) -> int:
     import rmi_sph
 
-    if args.config is not None:
-        config: Any = json.loads(Path(args.config).read_text(encoding="utf-8"))
-    else:
-        extra = {} if args.dt is None else {"dt": args.dt}
-        config = rmi_sph.trial_config(
-            args.size, args.porosity, args.hold, args.squeeze, args.radius, args.seed, **extra
-        )
+    try:
+        if args.config is not None:
+            config: Any = json.loads(Path(args.config).read_text(encoding="utf-8"))
+        else:
+            extra = {} if args.dt is None else {"dt": args.dt}
+            config = rmi_sph.trial_config(
+                args.size, args.porosity, args.hold, args.squeeze, args.radius, args.seed, **extra
+            )
+    except json.JSONDecodeError as exc:
+        print(f"rmi simulate: {args.config}: not valid JSON: {exc}", file=sys.stderr)
+        return 2
+    except (OSError, rmi_sph.ConfigError) as exc:
+        print(f"rmi simulate: {exc}", file=sys.stderr)
+        return 2
     try:
         result = simulate(
             config,
@@ -136,6 +144,9 @@ def run(args: argparse.Namespace) -> int:
             include_boundary=args.vtk_boundary,
             surface=args.surface,
         )
+    except rmi_sph.ConfigError as exc:
+        print(f"rmi simulate: {exc}", file=sys.stderr)
+        return 2
     except rmi_sph.RmiError as exc:
         print(f"rmi simulate: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1

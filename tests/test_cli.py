@@ -1,0 +1,65 @@
+"""The `rmi` entry point's handling of bad input: a message and status 2, not a traceback."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+from pathlib import Path
+
+import pytest
+
+import rmi_sph
+from rmi_learn.cli import main
+
+
+def test_missing_dataset_is_reported_with_status_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "out"
+    argv = ["train-policy", "--objective", "flow", "--data", str(tmp_path / "nope"), "--out"]
+    assert main([*argv, str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("rmi train-policy: ") and "not a built dataset" in err
+    assert "Traceback" not in err and not out.exists()
+
+
+def test_dataset_names_a_missing_run_directory(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    missing = tmp_path / "runs"
+    assert main(["dataset", "--runs", str(missing), "--out", str(tmp_path / "ds")]) != 0
+    err = capsys.readouterr().err
+    assert f"{missing} is not a directory of runs" in err
+    assert not (tmp_path / "ds").exists()
+
+
+def test_an_output_path_that_is_a_file_is_reported(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    taken = tmp_path / "taken"
+    taken.write_text("not a directory")
+    assert main(["sweep", "--preset", "tiny", "--out", str(taken)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("rmi sweep: ") and str(taken) in err and "Traceback" not in err
+    assert taken.read_text() == "not a directory"
+
+
+@pytest.mark.parametrize(
+    "exc",
+    [FileNotFoundError("where"), rmi_sph.ConfigError("field"), RuntimeError("bug")],
+)
+def test_input_errors_end_the_command_and_bugs_keep_their_traceback(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], exc: Exception
+) -> None:
+    module = importlib.import_module("rmi_learn.commands.report")
+
+    def fail(args: argparse.Namespace) -> int:
+        raise exc
+
+    monkeypatch.setattr(module, "run", fail)
+    if isinstance(exc, RuntimeError):
+        with pytest.raises(RuntimeError, match="bug"):
+            main(["report", "--out", "x"])
+    else:
+        assert main(["report", "--out", "x"]) == 2
+        assert capsys.readouterr().err.startswith("rmi report: ")
