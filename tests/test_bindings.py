@@ -109,6 +109,46 @@ def test_bad_config_names_the_field(make: Any, field: str) -> None:
     assert isinstance(info.value, ValueError)
 
 
+@pytest.mark.parametrize(
+    ("call", "field", "value"),
+    [
+        (lambda c: rmi_sph.Simulation(c).step(-1), "n", "-1"),
+        (lambda c: rmi_sph.Simulation(c, num_threads=-1), "num_threads", "-1"),
+        (lambda c: rmi_sph.Simulation(c, num_threads=2000), "num_threads", "2000"),
+        (lambda c: rmi_sph.run_trial(c, num_threads=-2), "num_threads", "-2"),
+        (lambda c: rmi_sph.run_trial(c, record_every=-3), "record_every", "-3"),
+        (lambda c: rmi_sph.run_trial(c, record_every=2**40), "record_every", str(2**40)),
+        (lambda c: rmi_sph.trial_config(8, 0.6, 20, 40, seed=-1), "seed", "-1"),
+        (lambda c: rmi_sph.Simulation.from_state(b"", num_threads=-4), "num_threads", "-4"),
+    ],
+)
+def test_out_of_range_integers_name_the_argument(
+    cfg: dict[str, Any], call: Any, field: str, value: str
+) -> None:
+    # Negative or oversized counts are ConfigErrors naming the argument and its range (not
+    # the bare OverflowError of converting them to unsigned integers).
+    with pytest.raises(rmi_sph.ConfigError) as info:
+        call(cfg)
+    assert (info.value.field, info.value.value) == (field, value)
+    assert info.value.expected and "Overflow" not in str(info.value)
+
+
+def test_state_file_errors_name_the_file(cfg: dict[str, Any], tmp_path: Path) -> None:
+    missing = tmp_path / "missing.bin"
+    with pytest.raises(FileNotFoundError) as info:
+        rmi_sph.Simulation.load(str(missing))
+    assert info.value.filename == str(missing) and str(missing) in str(info.value)
+    sim = rmi_sph.Simulation(cfg)
+    folder = tmp_path / "d"
+    folder.mkdir()
+    for target, kind in ((folder, IsADirectoryError), (folder / "no" / "s.bin", FileNotFoundError)):
+        with pytest.raises(kind) as err:
+            sim.save(str(target))
+        assert err.value.filename == str(target)
+    # The temporary file beside the target is gone too.
+    assert [p.name for p in tmp_path.iterdir()] == ["d"] and not any(folder.iterdir())
+
+
 def test_config_type_errors(tmp_path: Path) -> None:
     with pytest.raises(TypeError):
         rmi_sph.Simulation(42)  # type: ignore[arg-type]

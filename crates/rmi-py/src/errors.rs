@@ -117,6 +117,37 @@ fn build_pyerr(py: Python<'_>, e: CoreError) -> PyResult<PyErr> {
     })
 }
 
+/// An integer argument that must not be negative, as the unsigned type `T`, or a
+/// `ConfigError` naming `field` with the `expected` range: pyo3's own conversion would raise a
+/// bare `OverflowError` that names nothing.
+pub fn unsigned<T: TryFrom<i64>>(field: &str, value: i64, expected: &str) -> PyResult<T> {
+    T::try_from(value).map_err(|_| to_pyerr(CoreError::config(field, value, expected)))
+}
+
+/// A `num_threads` argument: `None` keeps the default; a negative count is the engine's own
+/// `num_threads` error (0 and too many are the engine's to reject).
+pub fn threads(value: Option<i64>) -> PyResult<Option<usize>> {
+    value.map(|v| usize::try_from(v).map_err(|_| to_pyerr(rmi_sph::simulation::threads_error(v)))).transpose()
+}
+
+/// The Python error of an engine call that read or wrote `path`: an I/O failure becomes the
+/// matching `OSError` subclass with the path as its `filename` (so its text names the file);
+/// other errors map as in [`to_pyerr`].
+pub fn at_path(e: CoreError, path: &std::path::Path) -> PyErr {
+    match e {
+        CoreError::Io(err) => match err.raw_os_error() {
+            // OSError(errno, strerror, filename) picks the subclass (FileNotFoundError, ...).
+            Some(code) => {
+                let text = std::io::Error::from_raw_os_error(code).to_string();
+                let strerror = text.trim_end_matches(&format!(" (os error {code})")).to_owned();
+                pyo3::exceptions::PyOSError::new_err((code, strerror, path.display().to_string()))
+            }
+            None => pyo3::exceptions::PyOSError::new_err(format!("{}: {err}", path.display())),
+        },
+        other => to_pyerr(other),
+    }
+}
+
 fn set_attrs<const N: usize>(py: Python<'_>, err: &PyErr, attrs: [(&str, Bound<'_, PyAny>); N]) -> PyResult<()> {
     let instance = err.value(py);
     for (name, attr) in attrs {

@@ -95,10 +95,12 @@ fn _raise_error(kind: &str) -> PyResult<()> {
 fn run_trial<'py>(
     py: Python<'py>,
     config: &Bound<'py, PyAny>,
-    num_threads: Option<usize>,
-    record_every: Option<u32>,
+    num_threads: Option<i64>,
+    record_every: Option<i64>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    run::run_trial(py, config, num_threads, record_every)
+    let record_every =
+        record_every.map(|v| errors::unsigned("record_every", v, "an integer in [1, 1000000]")).transpose()?;
+    run::run_trial(py, config, errors::threads(num_threads)?, record_every)
 }
 
 /// A trial config (dict) of one of the paper's sponges.
@@ -135,9 +137,10 @@ fn trial_config<'py>(
     hold_force: f64,
     squeeze_force: f64,
     radius: f64,
-    seed: u64,
+    seed: i64,
     overrides: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyAny>> {
+    let seed = errors::unsigned("seed", seed, "a non-negative integer")?;
     let cfg = config::trial_config(size_cm, porosity, hold_force, squeeze_force, radius, seed, overrides)?;
     config::to_dict(py, &cfg)
 }

@@ -25,6 +25,15 @@ pub fn panic_err(message: &str) -> PyErr {
     RmiError::new_err(format!("internal error in the rmi engine (Rust panic: {message}); please report it"))
 }
 
+/// [`into_py`] for a call that read or wrote `path` (see [`crate::errors::at_path`]).
+pub fn into_py_at<T>(c: Caught<T>, path: &std::path::Path) -> Result<T, PyErr> {
+    match c {
+        Ok(Ok(v)) => Ok(v),
+        Ok(Err(e)) => Err(crate::errors::at_path(e, path)),
+        Err(msg) => Err(panic_err(&msg)),
+    }
+}
+
 /// Converts a caught result into a Python result.
 pub fn into_py<T>(c: Caught<T>) -> Result<T, PyErr> {
     match c {

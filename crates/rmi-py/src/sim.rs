@@ -110,7 +110,8 @@ fn state_bytes(state: &Bound<'_, PyAny>) -> PyResult<Vec<u8>> {
 impl PySimulation {
     #[new]
     #[pyo3(signature = (config, *, num_threads=None, record=false))]
-    fn new(py: Python<'_>, config: &Bound<'_, PyAny>, num_threads: Option<usize>, record: bool) -> PyResult<Self> {
+    fn new(py: Python<'_>, config: &Bound<'_, PyAny>, num_threads: Option<i64>, record: bool) -> PyResult<Self> {
+        let num_threads = crate::errors::threads(num_threads)?;
         let cfg = config::extract(config)?;
         let trial = py.detach(|| catch(|| Trial::new(cfg, num_threads)));
         Ok(Self::wrap(into_py(trial)?, num_threads, record))
@@ -128,7 +129,8 @@ impl PySimulation {
     /// SimulationUnstableError
     ///     The step diverged; the state stays at the last good step.
     #[pyo3(signature = (n=1, *, stop_at_finish=false))]
-    fn step(&mut self, py: Python<'_>, n: u64, stop_at_finish: bool) -> PyResult<u64> {
+    fn step(&mut self, py: Python<'_>, n: i64, stop_at_finish: bool) -> PyResult<u64> {
+        let n: u64 = crate::errors::unsigned("n", n, "a non-negative integer (steps)")?;
         self.trial_mut()?;
         let mut done = 0u64;
         while done < n {
@@ -424,7 +426,8 @@ impl PySimulation {
     /// A simulation continuing from ``state`` (bytes of ``get_state``).
     #[staticmethod]
     #[pyo3(signature = (state, num_threads=None))]
-    fn from_state(py: Python<'_>, state: &Bound<'_, PyAny>, num_threads: Option<usize>) -> PyResult<Self> {
+    fn from_state(py: Python<'_>, state: &Bound<'_, PyAny>, num_threads: Option<i64>) -> PyResult<Self> {
+        let num_threads = crate::errors::threads(num_threads)?;
         let bytes = state_bytes(state)?;
         let t = into_py(py.detach(|| catch(|| Trial::from_bytes(&bytes, num_threads))))?;
         Ok(Self::wrap(t, num_threads, false))
@@ -433,14 +436,15 @@ impl PySimulation {
     /// Writes the state to ``path`` atomically (temporary name, then rename).
     fn save(&mut self, py: Python<'_>, path: std::path::PathBuf) -> PyResult<()> {
         let t = self.trial()?;
-        into_py(py.detach(|| catch(|| t.save(&path))))
+        crate::panic::into_py_at(py.detach(|| catch(|| t.save(&path))), &path)
     }
 
     /// A simulation continuing from a state file written by ``save``.
     #[staticmethod]
     #[pyo3(signature = (path, num_threads=None))]
-    fn load(py: Python<'_>, path: std::path::PathBuf, num_threads: Option<usize>) -> PyResult<Self> {
-        let t = into_py(py.detach(|| catch(|| Trial::load(&path, num_threads))))?;
+    fn load(py: Python<'_>, path: std::path::PathBuf, num_threads: Option<i64>) -> PyResult<Self> {
+        let num_threads = crate::errors::threads(num_threads)?;
+        let t = crate::panic::into_py_at(py.detach(|| catch(|| Trial::load(&path, num_threads))), &path)?;
         Ok(Self::wrap(t, num_threads, false))
     }
 

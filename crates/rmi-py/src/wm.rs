@@ -100,11 +100,12 @@ impl PyGruForecaster {
         hist: PyReadonlyArray3<'py, f32>,
         hist_mask: PyReadonlyArray3<'py, f32>,
         actions: PyReadonlyArray3<'py, f32>,
-        num_threads: usize,
+        num_threads: i64,
     ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-        if num_threads == 0 {
-            return Err(PyValueError::new_err("num_threads must be at least 1"));
-        }
+        let num_threads = match usize::try_from(num_threads) {
+            Ok(n) if (1..=rmi_sph::simulation::MAX_THREADS).contains(&n) => n,
+            _ => return Err(crate::errors::to_pyerr(rmi_sph::simulation::threads_error(num_threads))),
+        };
         let pool = if num_threads > 1 {
             let mut cached = self.pool.lock().unwrap_or_else(|e| e.into_inner());
             match cached.as_ref() {

@@ -39,6 +39,15 @@ pub struct StepStats {
     pub seconds: [f64; 6],
 }
 
+/// Largest thread pool a simulation accepts.
+pub const MAX_THREADS: usize = 1024;
+
+/// The error for a thread count outside 1 to [`MAX_THREADS`] (any integer: bindings pass
+/// negative ones on).
+pub fn threads_error(value: impl ToString) -> RmiError {
+    RmiError::config("num_threads", value, format!("an integer in [1, {MAX_THREADS}]"))
+}
+
 /// A porous-flow SPH simulation. All quantities SI; z is up by convention of the presets.
 pub struct Simulation {
     cfg: SimConfig,
@@ -103,8 +112,8 @@ impl Simulation {
     pub fn new(cfg: SimConfig, threads: Option<usize>) -> Result<Self> {
         cfg.validate()?;
         let threads = threads.unwrap_or_else(default_threads);
-        if threads == 0 || threads > 1024 {
-            return Err(RmiError::config("num_threads", threads, "an integer in [1, 1024]"));
+        if threads == 0 || threads > MAX_THREADS {
+            return Err(threads_error(threads));
         }
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
