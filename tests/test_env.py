@@ -82,3 +82,31 @@ def test_registered_with_gymnasium(cfg: dict[str, Any]) -> None:
     obs, _ = env.reset(seed=0)
     assert obs.shape == (23,)
     env.close()
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [{"goal_fraction": 1.5}, {"goal_fraction": -0.1}, {"goal_fraction": float("nan")},
+     {"goal": -0.01}, {"goal": float("inf")}],
+)  # fmt: skip
+def test_goals_out_of_range_are_refused(cfg: dict[str, Any], kwargs: dict[str, float]) -> None:
+    name = next(iter(kwargs))
+    with pytest.raises(ValueError, match=name):
+        SpongeSqueezeEnv(cfg, **kwargs)  # type: ignore[arg-type]
+
+
+def test_actions_of_the_wrong_size_are_refused(cfg: dict[str, Any]) -> None:
+    # One value must not be broadcast against the two bounds into a whole action.
+    env = SpongeSqueezeEnv(cfg, max_episode_steps=5)
+    env.reset(seed=0)
+    sim, goal = env.sim, env.goal
+    with pytest.raises(ValueError, match="goal_fraction"):
+        env.reset(options={"goal_fraction": 2.0})
+    assert env.sim is sim and env.goal == goal  # the episode goes on untouched
+    for bad in ([80.0], [80.0, 0.0, 0.0], [[80.0, 0.0]], [float("nan"), 0.0]):
+        with pytest.raises(ValueError, match="2 finite values"):
+            env.step(bad)
+    assert env.steps == 0
+    # In range or not, a well-formed action is clipped to the action space and taken.
+    env.step([1e6, 0.0])
+    assert env.steps == 1

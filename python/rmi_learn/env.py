@@ -53,6 +53,22 @@ ObsType = npt.NDArray[np.float32]
 ActType = npt.NDArray[np.float32]
 
 
+def _goal_mass(goal: Any) -> float:
+    """A goal retained water mass (kg): finite and not negative."""
+    g = float(goal)
+    if not (math.isfinite(g) and g >= 0.0):
+        raise ValueError(f"goal must be a retained water mass >= 0 kg, got {goal!r}")
+    return g
+
+
+def _goal_fraction(fraction: Any) -> float:
+    """A goal as a fraction of the water retained at hand-over: in [0, 1]."""
+    f = float(fraction)
+    if not 0.0 <= f <= 1.0:
+        raise ValueError(f"goal_fraction must be in [0, 1], got {fraction!r}")
+    return f
+
+
 class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
     """Squeeze a lifted sponge to a goal retained-water mass.
 
@@ -109,8 +125,8 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         if not (control_dt > 0 and math.isfinite(control_dt)):
             raise ValueError("control_dt must be a positive time (s)")
         self.num_threads = num_threads
-        self.default_goal = goal
-        self.goal_fraction = float(goal_fraction)
+        self.default_goal = None if goal is None else _goal_mass(goal)
+        self.goal_fraction = _goal_fraction(goal_fraction)
         self.handover = handover
         self.max_episode_steps = int(max_episode_steps)
         self.regulate = bool(regulate)
@@ -177,6 +193,9 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         """
         super().reset(seed=seed)
         options = dict(options or {})
+        # Checked before any work, so a bad option leaves the current episode as it was.
+        goal = _goal_mass(options["goal"]) if "goal" in options else self.default_goal
+        frac = _goal_fraction(options.get("goal_fraction", self.goal_fraction))
         if "state" in options:
             self.sim = rmi_sph.Simulation.from_state(options["state"], num_threads=self.num_threads)
         elif "state_path" in options:
@@ -184,13 +203,7 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         else:
             self.sim = self._scripted_approach(int(self.config["seed"]) if seed is None else seed)
         record = self.sim.take_record()
-        if "goal" in options:
-            self.goal = float(options["goal"])
-        elif self.default_goal is not None:
-            self.goal = float(self.default_goal)
-        else:
-            frac = float(options.get("goal_fraction", self.goal_fraction))
-            self.goal = frac * float(record["M_L"])
+        self.goal = frac * float(record["M_L"]) if goal is None else goal
         self.steps = 0
         return self._observe(record)
 
@@ -198,13 +211,12 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         """Apply u_t = [F_target, v_cmd] (clipped to the action space) for one control step."""
         if self.sim is None:
             raise RuntimeError("call reset() before step()")
-        a = np.clip(
-            np.asarray(action, dtype=np.float64).reshape(-1),
-            self._low,
-            self._high,
-        )
+        # Shape first: clipping against the two bounds would broadcast a single value into
+        # a full action.
+        a = np.asarray(action, dtype=np.float64)
         if a.shape != (2,) or not np.all(np.isfinite(a)):
             raise ValueError(f"action must be 2 finite values [F_target, v_cmd], got {action!r}")
+        a = np.clip(a, self._low, self._high)
         self.sim.set_action(float(a[0]), None if self.regulate else float(a[1]))
         unstable = False
         try:
