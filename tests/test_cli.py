@@ -63,3 +63,55 @@ def test_input_errors_end_the_command_and_bugs_keep_their_traceback(
     else:
         assert main(["report", "--out", "x"]) == 2
         assert capsys.readouterr().err.startswith("rmi report: ")
+
+
+@pytest.mark.parametrize(
+    ("argv", "option"),
+    [
+        (["train-wm", "--model", "ac-gru", "--epochs", "0"], "--epochs"),
+        (["train-wm", "--model", "ac-gru", "--batch-size", "0"], "--batch-size"),
+        (["train-wm", "--model", "ac-gru", "--seed", "-1"], "--seed"),
+        (["train-wm", "--model", "ac-gru", "--lr", "nan"], "--lr"),
+        (["train-wm", "--model", "transformer", "--water-weight", "0"], "--water-weight"),
+        (["train-policy", "--objective", "flow", "--ema-decay", "1"], "--ema-decay"),
+        (["train-policy", "--objective", "flow", "--horizon", "2"], "--horizon"),
+        (["train-policy", "--objective", "flow", "--weight-decay", "-1e-3"], "--weight-decay"),
+        (["dataset", "--runs", "r", "--seed", "-1"], "--seed"),
+        (["sweep", "--preset", "tiny", "--threads-per-run", "0"], "--threads-per-run"),
+        (["rank", "--k", "0"], "--k"),
+        (["rank", "--force-limit", "inf"], "--force-limit"),
+        (["simulate", "--threads", "0"], "--threads"),
+        (["pipeline", "--preset", "tiny", "--threads", "zero"], "--threads"),
+    ],
+)
+def test_numeric_options_are_checked_when_parsed(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: list[str], option: str
+) -> None:
+    # Out of range: argparse's usage error naming the option and the range, status 2, and
+    # nothing created (the command never starts; the value is refused before argparse looks
+    # for missing required options).
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as info:
+        main([*argv, "--out", str(out)])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument {option}" in err and "expected" in err
+    assert not out.exists()
+
+
+def test_number_types() -> None:
+    from rmi_learn.commands.argtypes import count, positive, real
+
+    assert count(0)("0") == 0 and count(1)("7") == 7
+    assert positive("1e-4") == 1e-4 and real(0.0, 1.0, high_open=True)("0") == 0.0
+    for parse, text in [
+        (count(1), "0"),
+        (count(0), "1.5"),
+        (positive, "0"),
+        (positive, "nan"),
+        (positive, "-inf"),
+        (real(0.0, 1.0, high_open=True), "1"),
+        (real(0.0, 1.0), "1.0000001"),
+    ]:
+        with pytest.raises(argparse.ArgumentTypeError, match="expected"):
+            parse(text)

@@ -15,6 +15,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from rmi_learn.commands.argtypes import count
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """CLI options of ``rmi analyze``."""
@@ -32,9 +34,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(default: the completed run closest to the grid's median parameters)",
     )
     parser.add_argument(
-        "--bootstrap", type=int, default=2000, help="cluster bootstrap resamples (default 2000)"
+        "--bootstrap",
+        type=count(1),
+        default=2000,
+        help="cluster bootstrap resamples (default 2000)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="bootstrap random seed")
+    parser.add_argument("--seed", type=count(0), default=0, help="bootstrap random seed")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -42,9 +47,6 @@ def run(args: argparse.Namespace) -> int:
     the input cannot be analysed."""
     from rmi_learn.analysis import AnalysisError, analyze, summary_lines
 
-    if args.bootstrap < 1:
-        print("rmi analyze: --bootstrap must be at least 1", file=sys.stderr)
-        return 2
     try:
         result = analyze(args.runs, args.out, args.run_id, n_boot=args.bootstrap, seed=args.seed)
     except AnalysisError as exc:

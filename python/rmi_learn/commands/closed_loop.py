@@ -12,6 +12,8 @@ import json
 import sys
 from pathlib import Path
 
+from rmi_learn.commands.argtypes import count
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``rmi closed-loop``."""
@@ -28,13 +30,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory")
     parser.add_argument(
         "--max-windows",
-        type=int,
+        type=count(0),
         default=4,
         metavar="N",
         help="windows per sponge size, evenly spaced (0: all; default 4)",
     )
     parser.add_argument(
-        "--threads", type=int, default=1, metavar="K", help="engine threads (default 1)"
+        "--threads", type=count(1), default=1, metavar="K", help="engine threads (default 1)"
     )
     parser.add_argument(
         "--command",

@@ -10,11 +10,13 @@ import argparse
 import json
 import sys
 
+from rmi_learn.commands.argtypes import count
+
 
 def _build_args(p: argparse.ArgumentParser, required: bool) -> None:
     p.add_argument("--runs", required=required, metavar="DIR", help="directory of run files")
     p.add_argument("--out", required=required, metavar="DIR", help="dataset directory")
-    p.add_argument("--seed", type=int, default=0, help="split seed (default 0)")
+    p.add_argument("--seed", type=count(0), default=0, help="split seed (default 0)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

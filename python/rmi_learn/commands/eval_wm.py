@@ -17,6 +17,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from rmi_learn.commands.argtypes import count
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``rmi eval-wm``."""
@@ -30,14 +32,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True, metavar="DIR", help="built dataset directory")
     parser.add_argument("--out", required=True, metavar="DIR", help="directory for the tables")
     parser.add_argument("--split", default="test", choices=("train", "val", "test"))
-    parser.add_argument("--batch-size", type=int, default=256)
+    parser.add_argument("--batch-size", type=count(1), default=256)
     parser.add_argument(
         "--max-windows",
-        type=int,
+        type=count(1),
         default=None,
         help="evaluate at most this many evenly spaced windows per size",
     )
-    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    parser.add_argument("--threads", type=count(1), default=1, help="torch CPU threads")
     parser.add_argument("--device", default="cpu")
     parser.add_argument(
         "--no-latency", action="store_true", help="skip the 8 chunks x 32 steps latency benchmark"

@@ -15,6 +15,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from rmi_learn.commands.argtypes import count
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``rmi pipeline``."""
@@ -25,7 +27,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     src.add_argument("--config", type=Path, metavar="FILE", help="a pipeline JSON file")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory")
     parser.add_argument(
-        "--threads", type=int, default=None, help="torch threads per stage (default: all cores)"
+        "--threads",
+        type=count(1),
+        default=None,
+        help="torch threads per stage (default: all cores)",
     )
     parser.add_argument("--only", nargs="+", metavar="STAGE", help="run just these stages")
     parser.add_argument("--redo", nargs="+", metavar="STAGE", help="forget these stages' markers")
@@ -43,9 +48,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"rmi pipeline: {exc}", file=sys.stderr)
         return 2
     threads = args.threads or os.cpu_count() or 1
-    if threads < 1:
-        print("rmi pipeline: --threads must be at least 1", file=sys.stderr)
-        return 2
     try:
         run_pipeline(cfg, args.out, threads=threads, only=args.only, redo=args.redo)
     except ValueError as exc:

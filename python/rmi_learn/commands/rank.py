@@ -29,6 +29,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from rmi_learn.commands.argtypes import count, positive
+
 SIZES = (8, 10, 12)
 LABELS = {"diffusion": "Diffusion policy", "flow": "Flow matching"}
 
@@ -41,16 +43,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--flow", type=Path, default=None, help="flow-matching policy run")
     parser.add_argument("--out", required=True, type=Path, help="directory for the tables")
     parser.add_argument("--split", default="test", choices=("train", "val", "test"))
-    parser.add_argument("--k", type=int, default=8, help="samples per window")
+    parser.add_argument("--k", type=count(1), default=8, help="samples per window")
     parser.add_argument(
-        "--max-windows", type=int, default=0, help="per size, evenly spaced subset (0: all)"
+        "--max-windows", type=count(0), default=0, help="per size, evenly spaced subset (0: all)"
     )
-    parser.add_argument("--batch-size", type=int, default=64, help="windows per batch")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--force-limit", type=float, default=400.0, help="N")
+    parser.add_argument("--batch-size", type=count(1), default=64, help="windows per batch")
+    parser.add_argument("--seed", type=count(0), default=0)
+    parser.add_argument("--force-limit", type=positive, default=400.0, help="N")
     parser.add_argument("--weights", default="model.ema", help="policy weights file stem")
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--threads", type=count(1), default=None)
 
 
 def _fmt(v: float | None) -> str:

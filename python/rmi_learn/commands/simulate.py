@@ -22,6 +22,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from rmi_learn.commands.argtypes import count
+
 #: Steps per ``Simulation.step`` call when no frames are written (only the chunk of Ctrl-C
 #: checks and progress; results do not depend on it).
 _CHUNK = 200
@@ -31,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, help="trial config JSON file")
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument(
-        "--vtk-every", type=int, default=0, help="write a VTK frame every N simulator steps"
+        "--vtk-every", type=count(0), default=0, help="write a VTK frame every N simulator steps"
     )
     parser.add_argument("--vtk-ascii", action="store_true", help="ascii instead of binary VTK")
     parser.add_argument(
@@ -42,14 +44,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="reconstruct the water surface per frame with pysplashsurf (if installed)",
     )
-    parser.add_argument("--threads", type=int, default=None, help="worker threads")
+    parser.add_argument("--threads", type=count(1), default=None, help="worker threads")
     g = parser.add_argument_group("config from parameters (when no --config is given)")
     g.add_argument("--size", type=int, choices=(8, 10, 12), default=10, help="sponge size (cm)")
     g.add_argument("--porosity", type=float, default=0.6, help="porosity (-)")
     g.add_argument("--hold", type=float, default=40.0, help="holding force (N)")
     g.add_argument("--squeeze", type=float, default=80.0, help="squeeze force (N)")
     g.add_argument("--radius", type=float, default=0.005, help="particle radius (m)")
-    g.add_argument("--seed", type=int, default=0, help="seed of the pore-water jitter")
+    g.add_argument("--seed", type=count(0), default=0, help="seed of the pore-water jitter")
     g.add_argument("--dt", type=float, default=None, help="time step (s)")
 
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from rmi_learn.commands.argtypes import count
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``rmi sweep``."""
@@ -17,18 +19,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--backend", choices=("local", "ray"), default="local")
     parser.add_argument(
         "--workers",
-        type=int,
+        type=count(0),
         default=None,
         help="parallel runs (local: processes, default cores // threads-per-run; 0 runs in "
         "this process)",
     )
     parser.add_argument(
-        "--threads-per-run", type=int, default=1, metavar="K", help="engine threads per run"
+        "--threads-per-run", type=count(1), default=1, metavar="K", help="engine threads per run"
     )
     parser.add_argument(
         "--retry-failed", action="store_true", help="rerun runs recorded as failed or unstable"
     )
-    parser.add_argument("--limit", type=int, default=None, help="run only the first N grid points")
+    parser.add_argument(
+        "--limit", type=count(0), default=None, help="run only the first N grid points"
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
         "--index-only", action="store_true", help="only rebuild OUT/index.parquet from the runs"

@@ -17,6 +17,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from rmi_learn.commands.argtypes import count, non_negative, positive, real
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """CLI options of ``rmi train-policy``."""
@@ -24,27 +26,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True, type=Path, help="built dataset directory")
     parser.add_argument("--out", required=True, type=Path, help="run directory (new or --resume)")
     parser.add_argument("--size-cm", type=int, default=None, help="train on one sponge size")
-    parser.add_argument("--epochs", type=int, default=80)
-    parser.add_argument("--batch-size", type=int, default=64)
-    parser.add_argument("--lr", type=float, default=1e-4)
-    parser.add_argument("--weight-decay", type=float, default=1e-6)
-    parser.add_argument("--patience", type=int, default=12)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--history", type=int, default=16)
-    parser.add_argument("--horizon", type=int, default=32, help="H_pi, divisible by 4")
-    parser.add_argument("--ema-decay", type=float, default=0.999, help="EMA decay cap")
+    parser.add_argument("--epochs", type=count(1), default=80)
+    parser.add_argument("--batch-size", type=count(1), default=64)
+    parser.add_argument("--lr", type=positive, default=1e-4)
+    parser.add_argument("--weight-decay", type=non_negative, default=1e-6)
+    parser.add_argument("--patience", type=count(1), default=12)
+    parser.add_argument("--seed", type=count(0), default=0)
+    parser.add_argument("--history", type=count(1), default=16)
+    parser.add_argument("--horizon", type=count(4), default=32, help="H_pi, divisible by 4")
     parser.add_argument(
-        "--snr-floor", type=float, default=0.0, help="floor of the min-SNR weight (diffusion)"
+        "--ema-decay", type=real(0.0, 1.0, high_open=True), default=0.999, help="EMA decay cap"
+    )
+    parser.add_argument(
+        "--snr-floor",
+        type=non_negative,
+        default=0.0,
+        help="floor of the min-SNR weight (diffusion)",
     )
     parser.add_argument(
         "--val-windows",
-        type=int,
+        type=count(1),
         default=1024,
         help="validation windows (evenly spaced subset) for the selection metric",
     )
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
-    parser.add_argument("--max-steps-per-epoch", type=int, default=None)
+    parser.add_argument("--threads", type=count(1), default=None, help="torch CPU threads")
+    parser.add_argument("--max-steps-per-epoch", type=count(1), default=None)
     parser.add_argument("--resume", action="store_true", help="continue the run in --out")
     parser.add_argument("--debug", action="store_true", help="shrink the run to seconds")
     parser.add_argument("--deterministic", action="store_true")

@@ -20,6 +20,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from rmi_learn.commands.argtypes import count, positive
+
 MODEL_CHOICES = ("baseline", "state-gru", "ac-gru", "arx", "ac-mlp", "transformer")
 GROUP_CHOICES = ("LS", "LS+G", "LS+G+C", "ALL")
 
@@ -72,41 +74,44 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="architecture override passed to the model constructor, e.g. d_model=128 "
         "(JSON value; repeatable); defaults follow the paper",
     )
-    parser.add_argument("--epochs", type=int, default=40, help="maximum epochs (default 40)")
-    parser.add_argument("--patience", type=int, default=8, help="early-stopping patience")
+    parser.add_argument("--epochs", type=count(1), default=40, help="maximum epochs (default 40)")
+    parser.add_argument("--patience", type=count(1), default=8, help="early-stopping patience")
     parser.add_argument(
         "--tf-epochs",
-        type=int,
+        type=count(0),
         default=20,
         help="teacher forcing decays 1 -> 0 over this many epochs",
     )
     parser.add_argument(
         "--water-weight",
-        type=float,
+        type=positive,
         default=None,
         help="loss weight of the retained-water channel (default: 8 for the Transformer, "
         "1 otherwise, as in the paper)",
     )
-    parser.add_argument("--batch-size", type=int, default=128)
+    parser.add_argument("--batch-size", type=count(1), default=128)
     parser.add_argument(
         "--steps-per-epoch",
-        type=int,
+        type=count(1),
         default=None,
         help="cap the optimiser steps per epoch (each epoch then sees a fresh random subset "
         "of the windows); default: every window once",
     )
-    parser.add_argument("--lr", type=float, default=None, help="learning rate (model default)")
+    parser.add_argument("--lr", type=positive, default=None, help="learning rate (model default)")
     parser.add_argument(
         "--val-windows",
-        type=int,
+        type=count(1),
         default=4096,
         help="validate on at most this many evenly spaced windows",
     )
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=count(0), default=0)
     parser.add_argument("--deterministic", action="store_true")
     parser.add_argument("--device", default="cpu")
     parser.add_argument(
-        "--threads", type=int, default=1, help="torch CPU threads (default 1: the cores are shared)"
+        "--threads",
+        type=count(1),
+        default=1,
+        help="torch CPU threads (default 1: the cores are shared)",
     )
     parser.add_argument("--resume", action="store_true", help="continue the run in --out")
     parser.add_argument("--debug", action="store_true", help="tiny run that takes seconds")
