@@ -46,9 +46,14 @@ def test_an_output_path_that_is_a_file_is_reported(
 
 @pytest.mark.parametrize(
     "exc",
-    [FileNotFoundError("where"), rmi_sph.ConfigError("field"), RuntimeError("bug")],
+    [
+        FileNotFoundError("where"),
+        rmi_sph.ConfigError("field"),
+        KeyboardInterrupt(),
+        RuntimeError("bug"),
+    ],
 )
-def test_input_errors_end_the_command_and_bugs_keep_their_traceback(
+def test_input_errors_and_ctrl_c_end_the_command_and_bugs_keep_their_traceback(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], exc: Exception
 ) -> None:
     module = importlib.import_module("rmi_learn.commands.report")
@@ -60,6 +65,9 @@ def test_input_errors_end_the_command_and_bugs_keep_their_traceback(
     if isinstance(exc, RuntimeError):
         with pytest.raises(RuntimeError, match="bug"):
             main(["report", "--out", "x"])
+    elif isinstance(exc, KeyboardInterrupt):
+        assert main(["report", "--out", "x"]) == 130
+        assert capsys.readouterr().err == "rmi report: interrupted\n"
     else:
         assert main(["report", "--out", "x"]) == 2
         assert capsys.readouterr().err.startswith("rmi report: ")

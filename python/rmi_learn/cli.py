@@ -59,6 +59,11 @@ def main(argv: list[str] | None = None) -> int:
     mod = importlib.import_module(f"rmi_learn.commands.{args._module}")
     try:
         return int(mod.run(args) or 0)
+    except KeyboardInterrupt:
+        # Outputs are written atomically, so what finished is kept; the resumable commands
+        # (sweep, train-*, closed-loop, pipeline) pick up from there when rerun.
+        print(f"rmi {args.command}: interrupted", file=sys.stderr)
+        return 130
     except Exception as exc:
         if not _is_input_error(exc):
             raise
