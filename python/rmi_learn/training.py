@@ -311,8 +311,12 @@ def load_weights(
 
 
 def read_config(out_dir: str | Path) -> dict[str, Any]:
-    """The ``config.json`` of a run directory."""
-    config: dict[str, Any] = json.loads((Path(out_dir) / CONFIG_FILE).read_text(encoding="utf-8"))
+    """The ``config.json`` of a run directory (FileNotFoundError naming the directory when
+    it is not one)."""
+    path = Path(out_dir) / CONFIG_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"{out_dir} is not a training run directory (no {CONFIG_FILE})")
+    config: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
     return config
 
 
