@@ -3,18 +3,18 @@
 //! `dambreak --steps 500 --threads 2 --radius 0.0125 [--reach N] [--json]`. Setup is excluded from
 //! timing; `--reach` overrides the preset's `SimConfig::neighbour_reach`.
 
-use rmi_benches::{arg, peak_rss_bytes};
+use rmi_benches::{peak_rss_bytes, Args};
 use rmi_sph::{presets, Simulation};
 use std::time::Instant;
 
 fn main() {
-    let args: Vec<String> = std::env::args().collect();
-    let steps: u64 = arg(&args, "--steps", 500);
-    let threads: usize = arg(&args, "--threads", 2);
-    let radius: f64 = arg(&args, "--radius", 0.0125);
-    let json = args.iter().any(|a| a == "--json");
+    let args = Args::parse(&["--steps", "--threads", "--radius", "--reach"], &["--json"]);
+    let steps: u64 = args.value("--steps", 500);
+    let threads: usize = args.value("--threads", 2);
+    let radius: f64 = args.value("--radius", 0.0125);
+    let json = args.flag("--json");
     let mut cfg = presets::dam_break(radius);
-    cfg.neighbour_reach = arg(&args, "--reach", cfg.neighbour_reach);
+    cfg.neighbour_reach = args.value("--reach", cfg.neighbour_reach);
     let mut sim = match Simulation::new(cfg, Some(threads)) {
         Ok(s) => s,
         Err(e) => {

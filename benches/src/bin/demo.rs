@@ -5,19 +5,19 @@
 //! block_jacobi|identity] [--coarse-cell 4]`; the last line is a checksum of the final state,
 //! for comparing builds and thread counts bit for bit.
 
-use rmi_benches::arg;
+use rmi_benches::Args;
 use rmi_sph::{presets, Simulation};
 use std::time::Instant;
 
 fn main() {
-    let args: Vec<String> = std::env::args().collect();
-    let radius: f64 = arg(&args, "--radius", 0.005);
-    let seconds: f64 = arg(&args, "--seconds", 0.3);
-    let threads: usize = arg(&args, "--threads", 2);
+    let args = Args::parse(&["--radius", "--seconds", "--threads", "--preconditioner", "--coarse-cell"], &[]);
+    let radius: f64 = args.value("--radius", 0.005);
+    let seconds: f64 = args.value("--seconds", 0.3);
+    let threads: usize = args.value("--threads", 2);
     let size = presets::SPONGE_SIZES[1];
     let mut cfg = presets::sponge(size, 0.6, radius);
-    if let Some(p) = args.iter().position(|a| a == "--preconditioner").and_then(|i| args.get(i + 1)) {
-        cfg.cg.preconditioner = match serde_json::from_value(serde_json::Value::String(p.clone())) {
+    if let Some(p) = args.text("--preconditioner") {
+        cfg.cg.preconditioner = match serde_json::from_value(serde_json::Value::String(p.to_owned())) {
             Ok(p) => p,
             Err(e) => {
                 eprintln!("error: --preconditioner {p}: {e}");
@@ -25,7 +25,7 @@ fn main() {
             }
         };
     }
-    cfg.cg.coarse_cell = arg(&args, "--coarse-cell", cfg.cg.coarse_cell);
+    cfg.cg.coarse_cell = args.value("--coarse-cell", cfg.cg.coarse_cell);
     let mut sim = match Simulation::new(cfg, Some(threads)) {
         Ok(s) => s,
         Err(e) => {

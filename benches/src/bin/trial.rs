@@ -9,41 +9,57 @@
 //! steps, wall time per stage of the step and the mean solver iterations: where a trial's
 //! time goes.
 
-use rmi_benches::arg;
+use rmi_benches::{fail, Args};
 use rmi_sph::presets::SPONGE_SIZES;
 use rmi_sph::trial::{run_trial_with, Trial, TrialConfig};
 
 fn main() {
-    let args: Vec<String> = std::env::args().collect();
-    let size_cm: u32 = arg(&args, "--size", 10);
-    let size = match size_cm {
+    let args = Args::parse(
+        &[
+            "--size",
+            "--porosity",
+            "--hold",
+            "--squeeze",
+            "--radius",
+            "--seed",
+            "--dry-density",
+            "--adhesion",
+            "--poisson",
+            "--threads",
+            "--config",
+            "--every",
+        ],
+        &["--dry", "--profile"],
+    );
+    let size = match args.value("--size", 10u32) {
         8 => SPONGE_SIZES[0],
+        10 => SPONGE_SIZES[1],
         12 => SPONGE_SIZES[2],
-        _ => SPONGE_SIZES[1],
+        other => fail(&format!("--size: {other} is not one of the paper's sizes 8, 10, 12 (cm)")),
     };
     let mut cfg = TrialConfig {
         size,
-        porosity: arg(&args, "--porosity", 0.6),
-        hold_force: arg(&args, "--hold", 40.0),
-        squeeze_force: arg(&args, "--squeeze", 80.0),
-        particle_radius: arg(&args, "--radius", 0.005),
-        seed: arg(&args, "--seed", 0),
+        porosity: args.value("--porosity", 0.6),
+        hold_force: args.value("--hold", 40.0),
+        squeeze_force: args.value("--squeeze", 80.0),
+        particle_radius: args.value("--radius", 0.005),
+        seed: args.value("--seed", 0),
         ..Default::default()
     };
-    cfg.saturated = !args.iter().any(|a| a == "--dry");
-    cfg.material.dry_density = arg(&args, "--dry-density", cfg.material.dry_density);
-    cfg.material.adhesion = arg(&args, "--adhesion", cfg.material.adhesion);
-    cfg.material.poisson_ratio = arg(&args, "--poisson", cfg.material.poisson_ratio);
-    let threads: usize = arg(&args, "--threads", 2);
-    if let Some(path) = args.iter().position(|a| a == "--config").and_then(|i| args.get(i + 1)) {
-        let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{path}: {e}"));
-        cfg = TrialConfig::from_json(&text).unwrap_or_else(|e| panic!("{path}: {e}"));
+    cfg.saturated = !args.flag("--dry");
+    cfg.material.dry_density = args.value("--dry-density", cfg.material.dry_density);
+    cfg.material.adhesion = args.value("--adhesion", cfg.material.adhesion);
+    cfg.material.poisson_ratio = args.value("--poisson", cfg.material.poisson_ratio);
+    let threads: usize = args.value("--threads", 2);
+    if let Some(path) = args.text("--config") {
+        let text = std::fs::read_to_string(path).unwrap_or_else(|e| fail(&format!("{path}: {e}")));
+        cfg = TrialConfig::from_json(&text).unwrap_or_else(|e| fail(&format!("{path}: {e}")));
     }
-    if args.iter().any(|a| a == "--profile") {
+    if args.flag("--profile") {
         profile(cfg, threads);
         return;
     }
-    let every: usize = arg(&args, "--every", 50);
+    let every: usize = args.value("--every", 50);
     let mut k = 0usize;
     println!(
         "{:>6} {:>8} {:>7} {:>7} {:>7} {:>7} {:>7} {:>8} {:>6} {:>8} {:>5}",
@@ -72,6 +88,7 @@ fn main() {
     });
     match res {
         Ok(r) => println!("{}", serde_json::to_string_pretty(&r.outcome).unwrap()),
+        Err(e @ rmi_sph::RmiError::InvalidConfig { .. }) => fail(&e.to_string()),
         Err(e) => {
             eprintln!("error: {e}");
             std::process::exit(1);
@@ -91,7 +108,7 @@ struct PhaseCost {
 }
 
 fn profile(cfg: TrialConfig, threads: usize) {
-    let mut trial = Trial::new(cfg, Some(threads)).unwrap_or_else(|e| panic!("{e}"));
+    let mut trial = Trial::new(cfg, Some(threads)).unwrap_or_else(|e| fail(&e.to_string()));
     // Phases in the order the trial reaches them.
     let mut phases: Vec<(String, PhaseCost)> = Vec::new();
     let t_all = std::time::Instant::now();
