@@ -82,6 +82,22 @@ def test_run_file_roundtrip(tmp_path: Path) -> None:
     assert [p.name for p in path.parent.iterdir()] == ["run.parquet"]  # no temporaries
 
 
+def test_a_damaged_run_file_is_named_not_a_polars_error(tmp_path: Path) -> None:
+    # A run file cut short (a full disk, an interrupted copy) is a RunFileError naming the
+    # file and saying how to get the run back; the dataset command reports it in one line.
+    res = toy()
+    path = run_path(tmp_path / "runs", PARAMS)
+    write_run(path, res["columns"], res["config"], PARAMS, res["outcome"])
+    path.write_bytes(path.read_bytes()[:2000])
+    for read in (read_run, read_run_meta):
+        with pytest.raises(RunFileError, match="unreadable run file.*delete it") as info:
+            read(path)
+        assert str(path) in str(info.value)
+    with pytest.raises(RunFileError, match="unreadable"):
+        build_dataset(tmp_path / "runs", tmp_path / "ds")
+    assert not (tmp_path / "ds").exists()
+
+
 def test_write_run_refuses_nan_outside_v_res(tmp_path: Path) -> None:
     res = toy()
     cols = dict(res["columns"])

@@ -366,7 +366,10 @@ def write_run(
 def read_run_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The metadata of a run file without its data: ``{"config", "params", "outcome"}``
     as dicts and ``"version"``, ``"git"`` as strings."""
-    raw = pl.read_parquet_metadata(Path(path))
+    try:
+        raw = pl.read_parquet_metadata(Path(path))
+    except pl.exceptions.PolarsError as exc:
+        raise _unreadable(path, exc) from exc
     if META_KEYS["params"] not in raw:
         raise RunFileError(f"{path}: not an rmi run file (no {META_KEYS['params']} metadata)")
     meta: dict[str, Any] = {}
@@ -383,8 +386,17 @@ def read_run(path: str | os.PathLike[str]) -> tuple[pl.DataFrame, dict[str, Any]
     """Read a run file: its rows as a polars DataFrame and its metadata
     (see :func:`read_run_meta`)."""
     meta = read_run_meta(path)
-    df = pl.read_parquet(Path(path))
+    try:
+        df = pl.read_parquet(Path(path))
+    except pl.exceptions.PolarsError as exc:
+        raise _unreadable(path, exc) from exc
     return df, meta
+
+
+def _unreadable(path: str | os.PathLike[str], exc: Exception) -> RunFileError:
+    # Run files are written atomically, so a damaged one came from outside (a full disk, a
+    # copy cut short): say which, and how to get the run back.
+    return RunFileError(f"{path}: unreadable run file ({exc}); delete it and sweep again to rerun")
 
 
 def scan_runs(root: str | os.PathLike[str]) -> pl.LazyFrame:
