@@ -125,7 +125,9 @@ def test_planner_selects_the_argmin_in_physical_units(
 # ---------------------------------------------------------------- end to end
 
 
-def test_train_and_rank_end_to_end(synthetic_dataset_dir: Path, tmp_path: Path) -> None:
+def test_train_and_rank_end_to_end(
+    synthetic_dataset_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     from rmi_learn.cli import main
 
     wm_dir = tmp_path / "wm"
@@ -195,3 +197,17 @@ def test_train_and_rank_end_to_end(synthetic_dataset_dir: Path, tmp_path: Path) 
     best = z["J_samples"][np.arange(n), z["index"]]
     assert np.allclose(best, z["J_samples"].min(1))
     assert z["run_id"].shape == (n,)
+    # Wrong inputs are found before anything is written: one line, status 2, no --out.
+    arx = tmp_path / "arx"
+    rc = main(["train-wm", "--model", "arx", "--data", str(synthetic_dataset_dir),
+               "--out", str(arx), *wm_args])  # fmt: skip
+    assert rc == 0
+    base = ["rank", "--data", str(synthetic_dataset_dir), "--out", str(tmp_path / "bad")]
+    for wm, flow, says in [
+        (tmp_path / "flow", tmp_path / "flow", "unknown world model 'policy-unet'"),
+        (wm_dir, wm_dir, "is not a policy run"),
+        (arx, tmp_path / "flow", "scores chunks of exactly 64 steps, the --flow policy's have 32"),
+    ]:
+        assert main([*base, "--wm", str(wm), "--flow", str(flow)]) == 2
+        assert says in capsys.readouterr().err
+        assert not (tmp_path / "bad").exists()

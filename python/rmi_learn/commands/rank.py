@@ -96,8 +96,24 @@ def run(args: argparse.Namespace) -> int:
     if not policies:
         print("rmi rank: give --diffusion and/or --flow", file=sys.stderr)
         return 2
-    ds = load_dataset(args.data)
-    wm, wm_cfg = models.load(args.wm)
+    # Every input is loaded and checked before --out exists: a wrong directory, model kind
+    # or horizon is a one-line error, not a traceback after half the work.
+    try:
+        ds = load_dataset(args.data)
+        wm, wm_cfg = models.load(args.wm)
+        loaded = {k: load_policy(p, args.weights, args.device) for k, p in policies.items()}
+        for name, (net, _, _) in loaded.items():
+            fixed, longest = wm.fixed_horizon, wm.max_horizon
+            h = net.config.horizon
+            takes = f"exactly {fixed}" if fixed is not None else f"at most {longest}"
+            if (fixed is not None and h != fixed) or (longest is not None and h > longest):
+                raise ValueError(
+                    f"--wm {args.wm}: the {wm.kind} world model scores chunks of {takes} "
+                    f"steps, the --{name} policy's have {h}"
+                )
+    except ValueError as exc:
+        print(f"rmi rank: {exc}", file=sys.stderr)
+        return 2
     wm = wm.to(args.device)
     wm_stats = (wm_cfg.get("extra") or {}).get("stats")
     if wm_stats is not None and not _stats_close(ds.stats, wm_stats):
@@ -113,8 +129,7 @@ def run(args: argparse.Namespace) -> int:
     per: dict[str, dict[int, dict[str, np.ndarray]]] = {}
     n_windows: dict[int, int] = {}
     timing: dict[str, float] = {}
-    for obj_name, run_dir in policies.items():
-        net, objective, pcfg = load_policy(run_dir, args.weights, args.device)
+    for obj_name, (net, objective, pcfg) in loaded.items():
         planner = Planner(net, objective, scorer, std, k=args.k, force_limit=args.force_limit)
         t0 = time.perf_counter()
         per[obj_name] = {}
