@@ -89,6 +89,8 @@ def test_input_errors_and_ctrl_c_end_the_command_and_bugs_keep_their_traceback(
         (["rank", "--k", "0"], "--k"),
         (["rank", "--force-limit", "inf"], "--force-limit"),
         (["simulate", "--threads", "0"], "--threads"),
+        (["train-policy", "--objective", "flow", "--channels", "16,x"], "--channels"),
+        (["train-policy", "--objective", "flow", "--channels", "0"], "--channels"),
         (["pipeline", "--preset", "tiny", "--threads", "zero"], "--threads"),
     ],
 )
@@ -123,3 +125,20 @@ def test_number_types() -> None:
     ]:
         with pytest.raises(argparse.ArgumentTypeError, match="expected"):
             parse(text)
+
+
+@pytest.mark.parametrize(
+    ("extra", "says"),
+    [
+        (["--horizon", "30"], "horizon 30 must be divisible by 4"),
+        (["--channels", "12,24"], "must be positive multiples of 8"),
+    ],
+)
+def test_policy_shape_errors_come_before_any_work(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str], says: str
+) -> None:
+    # A UNet that cannot be built is reported before the dataset is read or --out exists.
+    out = tmp_path / "out"
+    argv = ["train-policy", "--objective", "flow", "--data", str(tmp_path / "none")]
+    assert main([*argv, "--out", str(out), *extra]) == 2
+    assert says in capsys.readouterr().err and not out.exists()

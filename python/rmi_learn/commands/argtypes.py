@@ -51,6 +51,19 @@ def real(
     return parse
 
 
+def counts(text: str) -> tuple[int, ...]:
+    """Comma-separated integers >= 1 (layer widths)."""
+    try:
+        values = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated integers such as 64,128,256, got {text!r}"
+        ) from None
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"expected integers >= 1, got {text!r}")
+    return values
+
+
 #: A positive finite number (learning rates, loss weights, force limits).
 positive = real(0.0, low_open=True)
 #: A finite number >= 0 (weight decay, floors).

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from rmi_learn.commands.argtypes import count, non_negative, positive, real
+from rmi_learn.commands.argtypes import count, counts, non_negative, positive, real
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -57,7 +57,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--deterministic", action="store_true")
     parser.add_argument("--no-progress", action="store_true", help="no tqdm bars")
     parser.add_argument(
-        "--channels", default="64,128,256", help="UNet channel widths (comma separated)"
+        "--channels",
+        type=counts,
+        default=(64, 128, 256),
+        help="UNet channel widths, comma separated, multiples of 8 (default 64,128,256)",
     )
 
 
@@ -83,6 +86,12 @@ def run(args: argparse.Namespace) -> int:
 
     if args.threads:
         torch.set_num_threads(args.threads)
+    try:
+        unet_cfg = UNetConfig(horizon=args.horizon, channels=tuple(args.channels))
+        model = PolicyUNet(unet_cfg)
+    except ValueError as exc:
+        print(f"rmi train-policy: {exc}", file=sys.stderr)
+        return 2
     ds = load_dataset(args.data)
     train = ds.windows("train", args.size_cm, history=args.history, horizon=args.horizon)
     val = ds.windows("val", args.size_cm, history=args.history, horizon=args.horizon)
@@ -92,11 +101,8 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
-    channels = tuple(int(c) for c in args.channels.split(","))
-    unet_cfg = UNetConfig(horizon=args.horizon, channels=channels)
     kwargs: dict[str, Any] = {"snr_floor": args.snr_floor} if args.objective == "diffusion" else {}
     objective = make_objective(args.objective, **kwargs)
-    model = PolicyUNet(unet_cfg)
     ema = EMA(max_decay=args.ema_decay)
     n_val = min(args.val_windows, 64) if args.debug else args.val_windows
     val_batch = fetch_batch(val, _subset(len(val), n_val), args.device)

@@ -118,6 +118,10 @@ class PolicyUNet(nn.Module):
     def __init__(self, config: UNetConfig | None = None) -> None:
         super().__init__()
         cfg = config or UNetConfig()
+        g = cfg.n_groups
+        if not cfg.channels or any(c < g or c % g for c in cfg.channels):
+            # GroupNorm splits each block's channels into n_groups groups.
+            raise ValueError(f"channels {list(cfg.channels)} must be positive multiples of {g}")
         if cfg.horizon % (2 ** (len(cfg.channels) - 1)) != 0:
             raise ValueError(
                 f"horizon {cfg.horizon} must be divisible by {2 ** (len(cfg.channels) - 1)}"
