@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 
 import polars as pl
+import pytest
 
 from rmi_learn import schema
 from rmi_learn.runs import read_run
@@ -39,3 +40,13 @@ def test_tiny_preset_runs_with_the_engine_and_resumes(tmp_path: Path) -> None:
         .collect()
     )
     assert q.height == len({(s.params["porosity"], s.params["F_hold"]) for s in specs})
+
+
+def test_a_grid_the_engine_refuses_fails_before_any_run(tmp_path: Path) -> None:
+    # An override out of range would fail every run one by one; it is found up front,
+    # naming a run and the field, and nothing is written.
+    grid = {**load_grid("tiny"), "overrides": {"dt": -1.0}}
+    out = tmp_path / "grid"
+    with pytest.raises(ValueError, match=r"run size_cm=8/.*`dt` = -1.*no run was started"):
+        run_sweep(expand_grid(grid), out, workers=0, progress=False, grid=grid)
+    assert not out.exists()

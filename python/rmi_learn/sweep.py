@@ -222,6 +222,19 @@ def _config_of(spec: RunSpec, make_config: Any) -> dict[str, Any]:
     return config
 
 
+def _check_configs(specs: list[RunSpec], make_config: Any) -> None:
+    """Build every run's trial config before anything is written: an override or value the
+    engine refuses would otherwise fail each run of the grid one by one, recorded as failed.
+    Raises ``ValueError`` naming the first such run and the engine's message."""
+    import rmi_sph
+
+    for spec in specs:
+        try:
+            _config_of(spec, make_config)
+        except rmi_sph.ConfigError as exc:
+            raise ValueError(f"run {spec.run_id}: {exc} (no run was started)") from exc
+
+
 def _differences(old: Any, new: Any, path: str = "") -> list[str]:
     """Dotted paths where two JSON values differ, with both values."""
     if isinstance(old, dict) and isinstance(new, dict):
@@ -533,13 +546,15 @@ def run_sweep(
     unless ``progress`` is false. ``grid`` is stored as ``grid.json`` on the first sweep
     and must match on later ones.
     """
+    specs = list(specs)
+    _check_configs(specs, make_config)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     with _sweep_lock(out):
         _check_grid_file(out, grid)
         _clean_temporaries(out)
         return _sweep_locked(
-            list(specs),
+            specs,
             out,
             runner,
             make_config,
