@@ -222,17 +222,19 @@ def _config_of(spec: RunSpec, make_config: Any) -> dict[str, Any]:
     return config
 
 
-def _check_configs(specs: list[RunSpec], make_config: Any) -> None:
-    """Build every run's trial config before anything is written: an override or value the
-    engine refuses would otherwise fail each run of the grid one by one, recorded as failed.
-    Raises ``ValueError`` naming the first such run and the engine's message."""
+def _configs_of(specs: list[RunSpec], make_config: Any) -> dict[str, dict[str, Any]]:
+    """Every run's trial config by run id, built before anything is written: an override or
+    value the engine refuses would otherwise fail each run of the grid one by one, recorded
+    as failed. Raises ``ValueError`` naming the first such run and the engine's message."""
     import rmi_sph
 
+    configs: dict[str, dict[str, Any]] = {}
     for spec in specs:
         try:
-            _config_of(spec, make_config)
+            configs[spec.run_id] = _config_of(spec, make_config)
         except rmi_sph.ConfigError as exc:
             raise ValueError(f"run {spec.run_id}: {exc} (no run was started)") from exc
+    return configs
 
 
 def _differences(old: Any, new: Any, path: str = "") -> list[str]:
@@ -251,9 +253,12 @@ def _differences(old: Any, new: Any, path: str = "") -> list[str]:
     return [] if old == new else [f"{path}: {old!r} -> {new!r}"]
 
 
-def check_stale(specs: Iterable[RunSpec], runs_root: Path, make_config: Any = None) -> None:
+def check_stale(
+    specs: Iterable[RunSpec], runs_root: Path, configs: Mapping[str, dict[str, Any]]
+) -> None:
     """Refuse to resume over finished runs that the current engine would configure
     differently (a changed default, say): their data would silently mix two physics.
+    ``configs``: the config the engine builds now, by run id.
 
     Raises ``ValueError`` naming the number of stale runs, one of them and the fields that
     differ; the caller removes them or sweeps into a new directory.
@@ -264,7 +269,7 @@ def check_stale(specs: Iterable[RunSpec], runs_root: Path, make_config: Any = No
         if not path.exists():
             continue
         stored = read_run_meta(path)["config"]
-        diff = _differences(stored, json.loads(json.dumps(_config_of(spec, make_config))))
+        diff = _differences(stored, json.loads(json.dumps(configs[spec.run_id])))
         if diff:
             stale.append((spec.run_id, diff))
     if stale:
@@ -547,7 +552,7 @@ def run_sweep(
     and must match on later ones.
     """
     specs = list(specs)
-    _check_configs(specs, make_config)
+    configs = _configs_of(specs, make_config)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     with _sweep_lock(out):
@@ -555,6 +560,7 @@ def run_sweep(
         _clean_temporaries(out)
         return _sweep_locked(
             specs,
+            configs,
             out,
             runner,
             make_config,
@@ -568,6 +574,7 @@ def run_sweep(
 
 def _sweep_locked(
     specs: list[RunSpec],
+    configs: Mapping[str, dict[str, Any]],
     out: Path,
     runner: Any,
     make_config: Any,
@@ -583,7 +590,7 @@ def _sweep_locked(
         raise ValueError("the grid names some runs twice")
     if threads_per_run < 1:
         raise ValueError("threads_per_run must be at least 1")
-    check_stale(specs, runs_root, make_config)
+    check_stale(specs, runs_root, configs)
     pending = [s for s in specs if not is_done(run_path(runs_root, s.params).parent, retry_failed)]
     counts = {"ok": 0, "failed": 0, "unstable": 0}
     t0 = time.perf_counter()

@@ -3,7 +3,7 @@
 //! `dambreak --steps 500 --threads 2 --radius 0.0125 [--reach N] [--json]`. Setup is excluded from
 //! timing; `--reach` overrides the preset's `SimConfig::neighbour_reach`.
 
-use rmi_benches::{peak_rss_bytes, Args};
+use rmi_benches::{fail, peak_rss_bytes, Args};
 use rmi_sph::{presets, Simulation};
 use std::time::Instant;
 
@@ -17,10 +17,7 @@ fn main() {
     cfg.neighbour_reach = args.value("--reach", cfg.neighbour_reach);
     let mut sim = match Simulation::new(cfg, Some(threads)) {
         Ok(s) => s,
-        Err(e) => {
-            eprintln!("error: {e}");
-            std::process::exit(2);
-        }
+        Err(e) => fail(&e.to_string()),
     };
     let nf = sim.particles().n_fluid;
     let mut iters = 0u64;

@@ -5,7 +5,7 @@
 //! block_jacobi|identity] [--coarse-cell 4]`; the last line is a checksum of the final state,
 //! for comparing builds and thread counts bit for bit.
 
-use rmi_benches::Args;
+use rmi_benches::{fail, Args};
 use rmi_sph::{presets, Simulation};
 use std::time::Instant;
 
@@ -19,19 +19,13 @@ fn main() {
     if let Some(p) = args.text("--preconditioner") {
         cfg.cg.preconditioner = match serde_json::from_value(serde_json::Value::String(p.to_owned())) {
             Ok(p) => p,
-            Err(e) => {
-                eprintln!("error: --preconditioner {p}: {e}");
-                std::process::exit(2);
-            }
+            Err(e) => fail(&format!("--preconditioner {p}: {e}")),
         };
     }
     cfg.cg.coarse_cell = args.value("--coarse-cell", cfg.cg.coarse_cell);
     let mut sim = match Simulation::new(cfg, Some(threads)) {
         Ok(s) => s,
-        Err(e) => {
-            eprintln!("error: {e}");
-            std::process::exit(2);
-        }
+        Err(e) => fail(&e.to_string()),
     };
     let p = sim.particles();
     let (nf, ns) = (p.n_fluid, p.n_solid());

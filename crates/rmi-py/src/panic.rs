@@ -27,18 +27,19 @@ pub fn panic_err(message: &str) -> PyErr {
 
 /// [`into_py`] for a call that read or wrote `path` (see [`crate::errors::at_path`]).
 pub fn into_py_at<T>(c: Caught<T>, path: &std::path::Path) -> Result<T, PyErr> {
-    match c {
-        Ok(Ok(v)) => Ok(v),
-        Ok(Err(e)) => Err(crate::errors::at_path(e, path)),
-        Err(msg) => Err(panic_err(&msg)),
-    }
+    into_py_with(c, |e| crate::errors::at_path(e, path))
 }
 
 /// Converts a caught result into a Python result.
 pub fn into_py<T>(c: Caught<T>) -> Result<T, PyErr> {
+    into_py_with(c, to_pyerr)
+}
+
+/// A caught result as a Python result, engine errors mapped by `map`.
+fn into_py_with<T>(c: Caught<T>, map: impl FnOnce(rmi_sph::RmiError) -> PyErr) -> Result<T, PyErr> {
     match c {
         Ok(Ok(v)) => Ok(v),
-        Ok(Err(e)) => Err(to_pyerr(e)),
+        Ok(Err(e)) => Err(map(e)),
         Err(msg) => Err(panic_err(&msg)),
     }
 }

@@ -102,10 +102,10 @@ impl PyGruForecaster {
         actions: PyReadonlyArray3<'py, f32>,
         num_threads: i64,
     ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-        let num_threads = match usize::try_from(num_threads) {
-            Ok(n) if (1..=rmi_sph::simulation::MAX_THREADS).contains(&n) => n,
-            _ => return Err(crate::errors::to_pyerr(rmi_sph::simulation::threads_error(num_threads))),
-        };
+        let num_threads = usize::try_from(num_threads)
+            .map_err(|_| rmi_sph::simulation::threads_error(num_threads))
+            .and_then(rmi_sph::simulation::check_threads)
+            .map_err(crate::errors::to_pyerr)?;
         let pool = if num_threads > 1 {
             let mut cached = self.pool.lock().unwrap_or_else(|e| e.into_inner());
             match cached.as_ref() {

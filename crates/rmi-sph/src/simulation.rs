@@ -48,6 +48,14 @@ pub fn threads_error(value: impl ToString) -> RmiError {
     RmiError::config("num_threads", value, format!("an integer in [1, {MAX_THREADS}]"))
 }
 
+/// `threads` if it is a pool size a simulation accepts (1 to [`MAX_THREADS`]).
+pub fn check_threads(threads: usize) -> Result<usize> {
+    if threads == 0 || threads > MAX_THREADS {
+        return Err(threads_error(threads));
+    }
+    Ok(threads)
+}
+
 /// A porous-flow SPH simulation. All quantities SI; z is up by convention of the presets.
 pub struct Simulation {
     cfg: SimConfig,
@@ -111,10 +119,7 @@ impl Simulation {
     /// Builds the scene of `cfg` (validated first) with `threads` worker threads (None: default).
     pub fn new(cfg: SimConfig, threads: Option<usize>) -> Result<Self> {
         cfg.validate()?;
-        let threads = threads.unwrap_or_else(default_threads);
-        if threads == 0 || threads > MAX_THREADS {
-            return Err(threads_error(threads));
-        }
+        let threads = check_threads(threads.unwrap_or_else(default_threads))?;
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .build()

@@ -103,14 +103,16 @@ def run(args: argparse.Namespace) -> int:
         wm, wm_cfg = models.load(args.wm)
         loaded = {k: load_policy(p, args.weights, args.device) for k, p in policies.items()}
         for name, (net, _, _) in loaded.items():
-            fixed, longest = wm.fixed_horizon, wm.max_horizon
             h = net.config.horizon
-            takes = f"exactly {fixed}" if fixed is not None else f"at most {longest}"
-            if (fixed is not None and h != fixed) or (longest is not None and h > longest):
+            try:
+                wm.check_horizon_length(h)
+            except ValueError:
+                fixed, longest = wm.fixed_horizon, wm.max_horizon
+                takes = f"exactly {fixed}" if fixed is not None else f"at most {longest}"
                 raise ValueError(
                     f"--wm {args.wm}: the {wm.kind} world model scores chunks of {takes} "
                     f"steps, the --{name} policy's have {h}"
-                )
+                ) from None
     except ValueError as exc:
         print(f"rmi rank: {exc}", file=sys.stderr)
         return 2

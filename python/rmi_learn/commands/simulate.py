@@ -122,20 +122,18 @@ def simulate(
 def run(args: argparse.Namespace) -> int:
     import rmi_sph
 
-    try:
-        if args.config is not None:
+    # A missing file or a config value out of range is reported by the `rmi` entry point.
+    if args.config is not None:
+        try:
             config: Any = json.loads(Path(args.config).read_text(encoding="utf-8"))
-        else:
-            extra = {} if args.dt is None else {"dt": args.dt}
-            config = rmi_sph.trial_config(
-                args.size, args.porosity, args.hold, args.squeeze, args.radius, args.seed, **extra
-            )
-    except json.JSONDecodeError as exc:
-        print(f"rmi simulate: {args.config}: not valid JSON: {exc}", file=sys.stderr)
-        return 2
-    except (OSError, rmi_sph.ConfigError) as exc:
-        print(f"rmi simulate: {exc}", file=sys.stderr)
-        return 2
+        except json.JSONDecodeError as exc:
+            print(f"rmi simulate: {args.config}: not valid JSON: {exc}", file=sys.stderr)
+            return 2
+    else:
+        extra = {} if args.dt is None else {"dt": args.dt}
+        config = rmi_sph.trial_config(
+            args.size, args.porosity, args.hold, args.squeeze, args.radius, args.seed, **extra
+        )
     try:
         result = simulate(
             config,
@@ -146,9 +144,8 @@ def run(args: argparse.Namespace) -> int:
             include_boundary=args.vtk_boundary,
             surface=args.surface,
         )
-    except rmi_sph.ConfigError as exc:
-        print(f"rmi simulate: {exc}", file=sys.stderr)
-        return 2
+    except rmi_sph.ConfigError:
+        raise  # bad input: reported by the `rmi` entry point (status 2)
     except rmi_sph.RmiError as exc:
         print(f"rmi simulate: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1

@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     try:
-        unet_cfg = UNetConfig(horizon=args.horizon, channels=tuple(args.channels))
+        unet_cfg = UNetConfig(horizon=args.horizon, channels=args.channels)
         model = PolicyUNet(unet_cfg)
     except ValueError as exc:
         print(f"rmi train-policy: {exc}", file=sys.stderr)

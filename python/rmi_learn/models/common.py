@@ -141,7 +141,10 @@ class WorldModel(nn.Module):
         return hist * self.obs_keep, hist_mask * self.obs_keep
 
     def check_horizon(self, actions: torch.Tensor) -> int:
-        h = actions.shape[1]
+        return self.check_horizon_length(actions.shape[1])
+
+    def check_horizon_length(self, h: int) -> int:
+        """``h`` if the model can forecast chunks of ``h`` steps, else ValueError."""
         if self.fixed_horizon is not None and h != self.fixed_horizon:
             raise ValueError(
                 f"{self.kind} sees the whole chunk: horizon must be {self.fixed_horizon}, got {h}"
