@@ -27,7 +27,7 @@ def test_dataset_names_a_missing_run_directory(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     missing = tmp_path / "runs"
-    assert main(["dataset", "--runs", str(missing), "--out", str(tmp_path / "ds")]) != 0
+    assert main(["dataset", "--runs", str(missing), "--out", str(tmp_path / "ds")]) == 2
     err = capsys.readouterr().err
     assert f"{missing} is not a directory of runs" in err
     assert not (tmp_path / "ds").exists()
@@ -42,6 +42,23 @@ def test_an_output_path_that_is_a_file_is_reported(
     err = capsys.readouterr().err
     assert err.startswith("rmi sweep: ") and str(taken) in err and "Traceback" not in err
     assert taken.read_text() == "not a directory"
+
+
+def test_a_locked_sweep_directory_is_status_1_not_bad_input(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Valid input that cannot run now (another sweep writes the directory) is status 1."""
+    fcntl = pytest.importorskip("fcntl")
+    from rmi_learn.sweep import LOCK_FILE
+
+    out = tmp_path / "sweep"
+    out.mkdir()
+    with open(out / LOCK_FILE, "a+b") as held:
+        fcntl.flock(held.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        assert main(["sweep", "--preset", "tiny", "--out", str(out), "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("rmi sweep: another sweep is writing") and "Traceback" not in err
+    assert not (out / "runs").exists()
 
 
 @pytest.mark.parametrize(

@@ -464,7 +464,7 @@ def test_cli_build_and_info(
     text = capsys.readouterr().out
     assert "train/10cm" in text and "windows" in text
     assert (
-        cli_main(["dataset", "--runs", str(tmp_path / "none"), "--out", str(tmp_path / "x")]) == 1
+        cli_main(["dataset", "--runs", str(tmp_path / "none"), "--out", str(tmp_path / "x")]) == 2
     )
     with pytest.raises(FileNotFoundError):
         load_dataset(tmp_path / "x")

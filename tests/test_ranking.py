@@ -153,7 +153,7 @@ def test_train_and_rank_end_to_end(
     again = ["train-policy", "--objective", "flow", "--data", str(synthetic_dataset_dir),
              "--out", str(tmp_path / "flow"), *small]  # fmt: skip
     before = (tmp_path / "flow" / "model.ema.safetensors").read_bytes()
-    assert main(again) == 1
+    assert main(again) == 2
     assert main([*again, "--resume"]) == 0
     assert (tmp_path / "flow" / "model.ema.safetensors").read_bytes() == before
 

@@ -367,10 +367,10 @@ def test_cli_sweep_and_index_only(tmp_path: Path, capsys: pytest.CaptureFixture[
     (out / INDEX_FILE).unlink()
     assert cli_main(["sweep", "--out", str(out), "--index-only"]) == 0
     assert pl.read_parquet(out / INDEX_FILE).height == 4
-    assert cli_main(["sweep", "--out", str(out)]) == 1
+    assert cli_main(["sweep", "--out", str(out)]) == 2
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({**grid(), "squeeze_forces_N": [500]}))
-    assert cli_main(["sweep", "--grid", str(bad), "--out", str(out)]) == 1
+    assert cli_main(["sweep", "--grid", str(bad), "--out", str(out)]) == 2
 
 
 # ---- kill -9 and resume --------------------------------------------------------------------

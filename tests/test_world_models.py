@@ -499,7 +499,7 @@ def test_cli_debug_train_eval_and_load(synthetic_dataset_dir: Path, tmp_path: Pa
     # A finished run is never overwritten; --resume returns at once.
     before = (tmp_path / "ac-gru" / "model.safetensors").read_bytes()
     again = ("train-wm", "--model", "ac-gru", "--data", data, "--out", str(tmp_path / "ac-gru"))
-    assert _cli(*again, "--debug", "--no-progress") == 1
+    assert _cli(*again, "--debug", "--no-progress") == 2
     assert _cli(*again, "--debug", "--no-progress", "--resume") == 0
     assert (tmp_path / "ac-gru" / "model.safetensors").read_bytes() == before
     recs = [json.loads(x) for x in (tmp_path / "ac-gru" / "metrics.jsonl").read_text().splitlines()]

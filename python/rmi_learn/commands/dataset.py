@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run ``build`` or ``info``; 0 on success, 1 on an error."""
+    """Run ``build`` or ``info``; 0 on success, 2 on bad input (missing or damaged runs)."""
     from rmi_learn.dataset import build_dataset, describe
 
     cmd = getattr(args, "dataset_command", None)
@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
             return 0
         if not args.runs or not args.out:
             print("rmi dataset: give --runs DIR and --out DIR (or use `info DIR`)", file=sys.stderr)
-            return 1
+            return 2
         out = build_dataset(args.runs, args.out, seed=args.seed)
         info = json.loads((out / "dataset.json").read_text())
         print(
@@ -64,4 +64,4 @@ def run(args: argparse.Namespace) -> int:
         return 0
     except (OSError, ValueError) as exc:
         print(f"rmi dataset: {exc}", file=sys.stderr)
-        return 1
+        return 2

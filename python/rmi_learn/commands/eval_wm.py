@@ -47,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Evaluate and write the tables; 0 on success, 1 on a user error."""
+    """Evaluate and write the tables; 0 on success, 2 on a user error."""
     import torch
 
     if args.threads:
@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
         )
     except (FileNotFoundError, ValueError) as exc:
         print(f"rmi eval-wm: {exc}", file=sys.stderr)
-        return 1
+        return 2
     from rmi_learn.wm_eval import write_tables
 
     paths = write_tables(results, args.out)

@@ -44,7 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Execute the sweep; exit status 0 when every run of the grid has a run file or a
-    recorded failure, 1 on a usage or setup error."""
+    recorded failure, 2 on bad input (options, grid file, a run the engine refuses), 1 when
+    the sweep cannot start (another sweep holds the lock, the ray backend is missing)."""
     from rmi_learn.sweep import build_index, expand_grid, load_grid, run_sweep
 
     if args.index_only:
@@ -53,12 +54,12 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if not args.preset and not args.grid:
         print("rmi sweep: give --preset NAME or --grid FILE", file=sys.stderr)
-        return 1
+        return 2
     try:
         grid = load_grid(preset=args.preset) if args.preset else load_grid(path=args.grid)
     except (OSError, ValueError) as exc:
         print(f"rmi sweep: {exc}", file=sys.stderr)
-        return 1
+        return 2
     specs = expand_grid(grid)
     if args.limit is not None:
         specs = specs[: args.limit]
@@ -75,7 +76,10 @@ def run(args: argparse.Namespace) -> int:
             progress=not args.no_progress,
             grid=grid,
         )
-    except (RuntimeError, ValueError) as exc:
+    except ValueError as exc:
+        print(f"rmi sweep: {exc}", file=sys.stderr)
+        return 2
+    except RuntimeError as exc:
         print(f"rmi sweep: {exc}", file=sys.stderr)
         return 1
     print(res.summary())

@@ -73,7 +73,7 @@ def _subset(n: int, k: int) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Train one policy; prints the run summary as JSON. 0 on success, 1 on a user error
+    """Train one policy; prints the run summary as JSON. 0 on success, 2 on a user error
     (output directory holds a run without --resume, or resume settings differ)."""
     import torch
 
@@ -200,7 +200,7 @@ def run(args: argparse.Namespace) -> int:
         )
     except (FileExistsError, ValueError) as exc:
         print(f"rmi train-policy: {exc}", file=sys.stderr)
-        return 1
+        return 2
     summary = trainer.fit()
     print(json.dumps(summary, indent=2))
     return 0

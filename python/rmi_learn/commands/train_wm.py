@@ -119,7 +119,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Train as configured by ``args``; 0 on success, 1 on a user error."""
+    """Train as configured by ``args``; 0 on success, 2 on a user error."""
     import torch
 
     if args.threads:
@@ -150,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
         )
     except (FileExistsError, FileNotFoundError, ValueError, TypeError) as exc:
         print(f"rmi train-wm: {exc}", file=sys.stderr)
-        return 1
+        return 2
     print(json.dumps(summary, indent=2))
     return 0
 
