@@ -61,6 +61,26 @@ def test_a_locked_sweep_directory_is_status_1_not_bad_input(
     assert not (out / "runs").exists()
 
 
+def test_a_damaged_run_drawn_by_analyze_is_named_not_a_traceback(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`rmi analyze` of a sweep reads the index, then one run file for Fig. 4: when that file
+    is damaged the command names it and how to rerun it."""
+    from rmi_learn.sweep import build_index
+    from rmi_learn.synthetic import write_synthetic_runs
+
+    sweep = tmp_path / "sweep"
+    write_synthetic_runs(sweep / "runs", n_per_size=4, seed=0)
+    build_index(sweep)
+    damaged = sorted((sweep / "runs").rglob("run.parquet"))
+    for f in damaged:
+        f.write_bytes(f.read_bytes()[:100])
+    assert main(["analyze", "--runs", str(sweep), "--out", str(tmp_path / "an")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("rmi analyze: ") and "unreadable run file" in err
+    assert any(str(f) in err for f in damaged) and "Traceback" not in err
+
+
 @pytest.mark.parametrize(
     "exc",
     [

@@ -73,13 +73,16 @@ def main(argv: list[str] | None = None) -> int:
 
 def _is_input_error(exc: Exception) -> bool:
     """Whether ``exc`` says the user's input is wrong (a path that is missing or unreadable,
-    a file that is not JSON, a config value out of range) rather than that the code is: such
-    errors end the command with their message and exit status 2, where a bug keeps its
-    traceback. Commands report their own errors first; this is the net under them."""
+    a file that is not JSON, a damaged run file, a config value out of range) rather than
+    that the code is: such errors end the command with their message and exit status 2,
+    where a bug keeps its traceback. Commands report their own errors first; this is the net
+    under them."""
     import rmi_sph
+    from rmi_learn.runs import RunFileError
 
     paths = (FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError)
-    return isinstance(exc, (*paths, PermissionError, json.JSONDecodeError, rmi_sph.ConfigError))
+    inputs = (PermissionError, json.JSONDecodeError, RunFileError, rmi_sph.ConfigError)
+    return isinstance(exc, (*paths, *inputs))
 
 
 if __name__ == "__main__":
