@@ -73,15 +73,17 @@ def main(argv: list[str] | None = None) -> int:
 
 def _is_input_error(exc: Exception) -> bool:
     """Whether ``exc`` says the user's input is wrong (a path that is missing or unreadable,
-    a file that is not JSON, a damaged run file, a config value out of range) rather than
+    a file that is not JSON, a damaged run file, a config value out of range, or an
+    :class:`~rmi_learn.commands.InputError` a command raised for what it caught) rather than
     that the code is: such errors end the command with their message and exit status 2,
-    where a bug keeps its traceback. Commands report their own errors first; this is the net
-    under them."""
+    where a bug keeps its traceback. This is the one place that turns input errors into the
+    message and the status."""
     import rmi_sph
+    from rmi_learn.commands import InputError
     from rmi_learn.runs import RunFileError
 
     paths = (FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError)
-    inputs = (PermissionError, json.JSONDecodeError, RunFileError, rmi_sph.ConfigError)
+    inputs = (PermissionError, json.JSONDecodeError, RunFileError, rmi_sph.ConfigError, InputError)
     return isinstance(exc, (*paths, *inputs))
 
 

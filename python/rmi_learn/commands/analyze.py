@@ -12,9 +12,9 @@ See :mod:`rmi_learn.analysis`.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
+from rmi_learn.commands import InputError
 from rmi_learn.commands.argtypes import count
 
 
@@ -50,8 +50,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         result = analyze(args.runs, args.out, args.run_id, n_boot=args.bootstrap, seed=args.seed)
     except AnalysisError as exc:
-        print(f"rmi analyze: {exc}", file=sys.stderr)
-        return 2
+        raise InputError(exc) from exc
     for line in summary_lines(result):
         print(line)
     print(f"wrote {len(result['files'])} files to {args.out}")

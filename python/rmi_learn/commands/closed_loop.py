@@ -12,6 +12,7 @@ import json
 import sys
 from pathlib import Path
 
+from rmi_learn.commands import InputError
 from rmi_learn.commands.argtypes import count
 
 
@@ -64,8 +65,7 @@ def run(args: argparse.Namespace) -> int:
             log=lambda msg: print(msg, file=sys.stderr),
         )
     except ClosedLoopError as exc:
-        print(f"rmi closed-loop: {exc}", file=sys.stderr)
-        return 2
+        raise InputError(exc) from exc
     brief = {
         "out": str(args.out),
         "windows": summary["windows_total"],

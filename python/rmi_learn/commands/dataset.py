@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 
+from rmi_learn.commands import InputError
 from rmi_learn.commands.argtypes import count
 
 
@@ -51,8 +51,7 @@ def run(args: argparse.Namespace) -> int:
                     )
             return 0
         if not args.runs or not args.out:
-            print("rmi dataset: give --runs DIR and --out DIR (or use `info DIR`)", file=sys.stderr)
-            return 2
+            raise InputError("give --runs DIR and --out DIR (or use `info DIR`)")
         out = build_dataset(args.runs, args.out, seed=args.seed)
         info = json.loads((out / "dataset.json").read_text())
         print(
@@ -63,5 +62,4 @@ def run(args: argparse.Namespace) -> int:
         )
         return 0
     except (OSError, ValueError) as exc:
-        print(f"rmi dataset: {exc}", file=sys.stderr)
-        return 2
+        raise InputError(exc) from exc

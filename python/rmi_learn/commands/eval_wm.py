@@ -13,10 +13,10 @@ Baseline needs no run: it is always evaluated. Errors are in physical units (g, 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import Any
 
+from rmi_learn.commands import InputError
 from rmi_learn.commands.argtypes import count
 
 
@@ -63,8 +63,7 @@ def run(args: argparse.Namespace) -> int:
             latency=not args.no_latency,
         )
     except (FileNotFoundError, ValueError) as exc:
-        print(f"rmi eval-wm: {exc}", file=sys.stderr)
-        return 2
+        raise InputError(exc) from exc
     from rmi_learn.wm_eval import write_tables
 
     paths = write_tables(results, args.out)

@@ -15,6 +15,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from rmi_learn.commands import InputError
 from rmi_learn.commands.argtypes import count
 
 
@@ -45,14 +46,12 @@ def run(args: argparse.Namespace) -> int:
     try:
         cfg = load_preset(preset=args.preset) if args.preset else load_preset(path=args.config)
     except (OSError, ValueError) as exc:
-        print(f"rmi pipeline: {exc}", file=sys.stderr)
-        return 2
+        raise InputError(exc) from exc
     threads = args.threads or os.cpu_count() or 1
     try:
         run_pipeline(cfg, args.out, threads=threads, only=args.only, redo=args.redo)
     except ValueError as exc:
-        print(f"rmi pipeline: {exc}", file=sys.stderr)
-        return 2
+        raise InputError(exc) from exc
     except PipelineError as exc:
         print(f"rmi pipeline: {exc}", file=sys.stderr)
         print("run the same command again to continue from this stage", file=sys.stderr)

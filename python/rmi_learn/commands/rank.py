@@ -24,11 +24,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
+from rmi_learn.commands import InputError
 from rmi_learn.commands.argtypes import count, positive
 
 SIZES = (8, 10, 12)
@@ -94,8 +94,7 @@ def run(args: argparse.Namespace) -> int:
         torch.set_num_threads(args.threads)
     policies = {k: p for k, p in (("diffusion", args.diffusion), ("flow", args.flow)) if p}
     if not policies:
-        print("rmi rank: give --diffusion and/or --flow", file=sys.stderr)
-        return 2
+        raise InputError("give --diffusion and/or --flow")
     # Every input is loaded and checked before --out exists: a wrong directory, model kind
     # or horizon is a one-line error, not a traceback after half the work.
     try:
@@ -114,13 +113,11 @@ def run(args: argparse.Namespace) -> int:
                     f"steps, the --{name} policy's have {h}"
                 ) from None
     except ValueError as exc:
-        print(f"rmi rank: {exc}", file=sys.stderr)
-        return 2
+        raise InputError(exc) from exc
     wm = wm.to(args.device)
     wm_stats = (wm_cfg.get("extra") or {}).get("stats")
     if wm_stats is not None and not _stats_close(ds.stats, wm_stats):
-        print("rmi rank: W_T was trained with other standardisation statistics", file=sys.stderr)
-        return 2
+        raise InputError("W_T was trained with other standardisation statistics")
     std = Standardiser.from_stats(ds.stats)
     std = Standardiser(*(x.to(args.device) for x in (std.z_mean, std.z_std, std.u_mean, std.u_std)))
     scorer = world_model_scorer(wm)

@@ -10,8 +10,9 @@ run say so instead of failing, so the report can be looked at while a pipeline r
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
+
+from rmi_learn.commands import InputError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,7 +34,6 @@ def run(args: argparse.Namespace) -> int:
     try:
         md, page = write_report(args.out, args.validation)
     except FileNotFoundError as exc:
-        print(f"rmi report: {exc}", file=sys.stderr)
-        return 2
+        raise InputError(exc) from exc
     print(f"wrote {md} and {page}")
     return 0

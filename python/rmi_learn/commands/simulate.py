@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from rmi_learn.commands import InputError
 from rmi_learn.commands.argtypes import count
 
 #: Steps per ``Simulation.step`` call when no frames are written (only the chunk of Ctrl-C
@@ -127,8 +128,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             config: Any = json.loads(Path(args.config).read_text(encoding="utf-8"))
         except json.JSONDecodeError as exc:
-            print(f"rmi simulate: {args.config}: not valid JSON: {exc}", file=sys.stderr)
-            return 2
+            raise InputError(f"{args.config}: not valid JSON: {exc}") from exc
     else:
         extra = {} if args.dt is None else {"dt": args.dt}
         config = rmi_sph.trial_config(

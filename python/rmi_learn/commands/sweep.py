@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from rmi_learn.commands import InputError
 from rmi_learn.commands.argtypes import count
 
 
@@ -53,13 +54,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"index: {df.height} runs -> {args.out}/index.parquet")
         return 0
     if not args.preset and not args.grid:
-        print("rmi sweep: give --preset NAME or --grid FILE", file=sys.stderr)
-        return 2
+        raise InputError("give --preset NAME or --grid FILE")
     try:
         grid = load_grid(preset=args.preset) if args.preset else load_grid(path=args.grid)
     except (OSError, ValueError) as exc:
-        print(f"rmi sweep: {exc}", file=sys.stderr)
-        return 2
+        raise InputError(exc) from exc
     specs = expand_grid(grid)
     if args.limit is not None:
         specs = specs[: args.limit]
@@ -77,8 +76,7 @@ def run(args: argparse.Namespace) -> int:
             grid=grid,
         )
     except ValueError as exc:
-        print(f"rmi sweep: {exc}", file=sys.stderr)
-        return 2
+        raise InputError(exc) from exc
     except RuntimeError as exc:
         print(f"rmi sweep: {exc}", file=sys.stderr)
         return 1

@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
+from rmi_learn.commands import InputError
 from rmi_learn.commands.argtypes import count, counts, non_negative, positive, real
 
 
@@ -90,17 +90,12 @@ def run(args: argparse.Namespace) -> int:
         unet_cfg = UNetConfig(horizon=args.horizon, channels=args.channels)
         model = PolicyUNet(unet_cfg)
     except ValueError as exc:
-        print(f"rmi train-policy: {exc}", file=sys.stderr)
-        return 2
+        raise InputError(exc) from exc
     ds = load_dataset(args.data)
     train = ds.windows("train", args.size_cm, history=args.history, horizon=args.horizon)
     val = ds.windows("val", args.size_cm, history=args.history, horizon=args.horizon)
     if len(train) == 0 or len(val) == 0:
-        print(
-            f"rmi train-policy: need train and val windows (got {len(train)}, {len(val)})",
-            file=sys.stderr,
-        )
-        return 2
+        raise InputError(f"need train and val windows (got {len(train)}, {len(val)})")
     kwargs: dict[str, Any] = {"snr_floor": args.snr_floor} if args.objective == "diffusion" else {}
     objective = make_objective(args.objective, **kwargs)
     ema = EMA(max_decay=args.ema_decay)
@@ -199,8 +194,7 @@ def run(args: argparse.Namespace) -> int:
             resume=args.resume,
         )
     except (FileExistsError, ValueError) as exc:
-        print(f"rmi train-policy: {exc}", file=sys.stderr)
-        return 2
+        raise InputError(exc) from exc
     summary = trainer.fit()
     print(json.dumps(summary, indent=2))
     return 0

@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
+from rmi_learn.commands import InputError
 from rmi_learn.commands.argtypes import count, positive
 
 MODEL_CHOICES = ("baseline", "state-gru", "ac-gru", "arx", "ac-mlp", "transformer")
@@ -149,8 +149,7 @@ def run(args: argparse.Namespace) -> int:
             progress=not args.no_progress,
         )
     except (FileExistsError, FileNotFoundError, ValueError, TypeError) as exc:
-        print(f"rmi train-wm: {exc}", file=sys.stderr)
-        return 2
+        raise InputError(exc) from exc
     print(json.dumps(summary, indent=2))
     return 0
 
