@@ -1,15 +1,22 @@
 # Developer entry points. `make test` is the full check CI runs (see .ci/run).
 #
-# `make setup` keeps a virtual environment in .venv with the test tools and the package itself
-# (built in release mode by maturin). Stamp files inside .venv make re-runs cheap: the tools are
-# reinstalled only when pyproject.toml (or this file) changes, the native module is rebuilt only
-# when a Rust source or manifest changes. Delete .venv to start over.
+# `make setup` keeps a virtual environment in .venv with the exact versions of
+# requirements-dev.txt and the package itself (built in release mode by maturin). Stamp files
+# inside .venv make re-runs cheap: the tools are reinstalled only when requirements-dev.txt
+# changes, the native module is rebuilt only when a Rust source or manifest changes. Delete
+# .venv to start over.
 
 PYTHON ?= python3
-VENV := .venv
+# CI passes VENV=<dir in its cache> so one environment serves every fresh clone it tests.
+VENV ?= .venv
 VENV_PY := $(VENV)/bin/python
-TOOLS_STAMP := $(VENV)/.tools-stamp
+# The exact versions to install (see its header). The stamp's name carries the file's hash: an
+# edit reinstalls, and an environment that already holds this set (CI's) is used as it is.
+LOCK := requirements-dev.txt
+TOOLS_STAMP := $(VENV)/.tools-$(shell sha256sum $(LOCK) | cut -c1-16)
 BUILD_STAMP := $(VENV)/.build-stamp
+# torch and the CUDA libraries it links to: about 4 GB installed.
+BIG_WHEELS := ^(torch|nvidia-|cuda-)
 
 # Everything the native module is built from (the binding crate and the core it links).
 RUST_INPUTS := Cargo.toml Cargo.lock $(shell find crates -name '*.rs' -o -name Cargo.toml)
@@ -26,10 +33,13 @@ setup: $(BUILD_STAMP)
 $(VENV_PY):
 	$(PYTHON) -m venv $(VENV)
 
-$(TOOLS_STAMP): pyproject.toml Makefile | $(VENV_PY)
-	$(VENV_PY) -m pip install --upgrade pip
-	$(VENV_PY) -m pip install 'maturin>=1.9.4,<2' pytest hypothesis 'numpy>=2' ruff mypy \
-		'torch>=2.4' 'safetensors>=0.4' 'gymnasium>=1.0' 'matplotlib>=3.8' 'polars>=2' 'tqdm>=4.66' 'ray>=2.30'
+# Every line --no-deps (the lock is complete and leaves out torch's optional triton) and no wheel
+# cache: the wheels would hold another 3 GB on disk beside the environment. The big wheels go one
+# per pip call, so at most one of them (<= 1 GB) waits on disk while it is installed.
+$(TOOLS_STAMP): | $(VENV_PY)
+	grep -E '^pip==' $(LOCK) | xargs $(VENV_PY) -m pip install --no-cache-dir
+	grep -E '$(BIG_WHEELS)' $(LOCK) | xargs -n1 $(VENV_PY) -m pip install --no-cache-dir --no-deps
+	grep -vE '$(BIG_WHEELS)|^pip==|^#|^$$' $(LOCK) | xargs $(VENV_PY) -m pip install --no-cache-dir --no-deps
 	touch $@
 
 # `maturin develop` installs the runtime dependencies, copies the extension module into
