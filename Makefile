@@ -30,7 +30,12 @@ export PIP_DISABLE_PIP_VERSION_CHECK := 1
 
 setup: $(BUILD_STAMP)
 
+# The pinned versions need CPython 3.11+ (numpy 2.4 and others dropped 3.10); say so before
+# pip fails on the first of them. (`pip install .[learn]` still works on 3.10.)
 $(VENV_PY):
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else \
+		"make setup needs Python 3.11 or newer for requirements-dev.txt; this is " \
+		+ sys.version.split()[0] + ": pass PYTHON=python3.11 (or newer)")'
 	$(PYTHON) -m venv $(VENV)
 
 # Every line --no-deps (the lock is complete and leaves out torch's optional triton) and no wheel
