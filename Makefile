@@ -10,10 +10,10 @@ PYTHON ?= python3
 # CI passes VENV=<dir in its cache> so one environment serves every fresh clone it tests.
 VENV ?= .venv
 VENV_PY := $(VENV)/bin/python
-# The exact versions to install (see its header). The stamp's name carries the file's hash: an
-# edit reinstalls, and an environment that already holds this set (CI's) is used as it is.
+# The exact versions to install (see its header). The stamp's name carries a hash of the pins:
+# changing one reinstalls, and an environment that already holds this set (CI's) is used as it is.
 LOCK := requirements-dev.txt
-TOOLS_STAMP := $(VENV)/.tools-$(shell sha256sum $(LOCK) | cut -c1-16)
+TOOLS_STAMP := $(VENV)/.tools-$(shell grep -v '^\#' $(LOCK) | sha256sum | cut -c1-16)
 BUILD_STAMP := $(VENV)/.build-stamp
 # torch and the CUDA libraries it links to: about 4 GB installed.
 BIG_WHEELS := ^(torch|nvidia-|cuda-)
@@ -26,7 +26,8 @@ RUST_INPUTS := Cargo.toml Cargo.lock $(shell find crates -name '*.rs' -o -name C
 export PYO3_PYTHON := $(abspath $(VENV_PY))
 export PIP_DISABLE_PIP_VERSION_CHECK := 1
 
-.PHONY: setup test test-rust test-python demo pipeline pipeline-tiny validation report lint bench clean
+.PHONY: setup lock test test-rust test-python demo pipeline pipeline-tiny validation report lint bench
+.PHONY: clean
 
 setup: $(BUILD_STAMP)
 
@@ -46,6 +47,11 @@ $(TOOLS_STAMP): | $(VENV_PY)
 	grep -E '$(BIG_WHEELS)' $(LOCK) | xargs -n1 $(VENV_PY) -m pip install --no-cache-dir --no-deps
 	grep -vE '$(BIG_WHEELS)|^pip==|^#|^$$' $(LOCK) | xargs $(VENV_PY) -m pip install --no-cache-dir --no-deps
 	touch $@
+
+# Re-resolves requirements-dev.txt from pyproject.toml's extras against PyPI (metadata only,
+# about 20 s); see tools/lock.py.
+lock: | $(VENV_PY)
+	$(VENV_PY) tools/lock.py
 
 # `maturin develop` installs the runtime dependencies, copies the extension module into
 # python/rmi_sph/ and points the venv at python/ so edits to .py files need no reinstall.
@@ -90,7 +96,7 @@ report: setup
 lint: setup
 	cargo fmt --all -- --check
 	cargo clippy --workspace --all-targets -- -D warnings
-	$(VENV)/bin/ruff check python tests benches
+	$(VENV)/bin/ruff check python tests benches tools
 
 # Rust benchmarks only; benches/compare_splishsplash.py needs pysplishsplash (see its docstring).
 bench:
