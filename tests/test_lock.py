@@ -35,7 +35,10 @@ def pins() -> dict[str, str]:
 def test_environment_holds_the_pinned_versions() -> None:
     # make test reinstalls when the file changes; a mismatch means a stale environment.
     wrong = {n: (v, md.version(n)) for n, v in pins().items() if md.version(n) != v}
-    assert not wrong, f"installed versions differ from requirements-dev.txt: {wrong}"
+    assert not wrong, (
+        f"installed versions differ from requirements-dev.txt (pinned, installed): {wrong}; "
+        "`make setup` installs the pins, `make lock` re-pins after a deliberate upgrade"
+    )
 
 
 def test_every_requirement_of_a_pin_is_pinned_and_satisfied() -> None:
