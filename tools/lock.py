@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -33,12 +34,7 @@ LEFT_OUT = frozenset({"triton"})
 
 def canonical(name: str) -> str:
     """PEP 503 normal form of a distribution name."""
-    out = name.lower()
-    for ch in "_.":
-        out = out.replace(ch, "-")
-    while "--" in out:
-        out = out.replace("--", "-")
-    return out
+    return re.sub(r"[-_.]+", "-", name).lower()
 
 
 def pins_from_report(report: dict[str, Any]) -> list[str]:

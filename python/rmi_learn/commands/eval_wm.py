@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
             device=args.device,
             latency=not args.no_latency,
         )
-    except (FileNotFoundError, ValueError) as exc:
+    except ValueError as exc:
         raise InputError(exc) from exc
     from rmi_learn.wm_eval import write_tables
 

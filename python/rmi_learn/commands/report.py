@@ -12,8 +12,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from rmi_learn.commands import InputError
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``rmi report``."""
@@ -31,9 +29,7 @@ def run(args: argparse.Namespace) -> int:
     """Write the report; 0 on success, 2 when --out is not a directory."""
     from rmi_learn.report import write_report
 
-    try:
-        md, page = write_report(args.out, args.validation)
-    except FileNotFoundError as exc:
-        raise InputError(exc) from exc
+    # A missing --out is a FileNotFoundError: the entry point reports it (status 2).
+    md, page = write_report(args.out, args.validation)
     print(f"wrote {md} and {page}")
     return 0

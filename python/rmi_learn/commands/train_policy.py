@@ -193,7 +193,7 @@ def run(args: argparse.Namespace) -> int:
             hooks=[ema],
             resume=args.resume,
         )
-    except (FileExistsError, ValueError) as exc:
+    except ValueError as exc:
         raise InputError(exc) from exc
     summary = trainer.fit()
     print(json.dumps(summary, indent=2))

@@ -148,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
             debug=args.debug,
             progress=not args.no_progress,
         )
-    except (FileExistsError, FileNotFoundError, ValueError, TypeError) as exc:
+    except (ValueError, TypeError) as exc:
         raise InputError(exc) from exc
     print(json.dumps(summary, indent=2))
     return 0
