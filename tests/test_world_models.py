@@ -559,6 +559,42 @@ def test_cli_debug_train_eval_and_load(synthetic_dataset_dir: Path, tmp_path: Pa
     assert "| AC-GRU-WM, shuffled A |" in md and "## Horizon 1.28 s" in md
 
 
+def test_huber_delta_reaches_the_loss_and_is_fixed_on_resume(
+    synthetic_dataset_dir: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    import rmi_learn.models.common as common
+
+    seen: list[float] = []
+    real = common.wm_loss
+
+    def spy(*args: Any, **kwargs: Any) -> Any:
+        seen.append(kwargs["huber_delta"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(common, "wm_loss", spy)
+    out = tmp_path / "mlp"
+    base = ("train-wm", "--model", "ac-mlp", "--data", str(synthetic_dataset_dir))
+    base += ("--out", str(out), "--debug", "--no-progress")
+    assert _cli(*base, "--huber-delta", "0.05") == 0
+    assert seen and set(seen) == {0.05}
+    assert json.loads((out / "config.json").read_text())["extra"]["huber_delta"] == 0.05
+    capsys.readouterr()
+    # Resuming with another loss is refused, naming the setting; the same one is accepted.
+    assert _cli(*base, "--resume") == 2
+    assert "huber_delta was 0.05" in capsys.readouterr().err
+    assert _cli(*base, "--resume", "--huber-delta", "0.05", "--water-weight", "2") == 2
+    assert "water_weight was 1.0" in capsys.readouterr().err
+    assert _cli(*base, "--resume", "--huber-delta", "0.05", "--size", "10") == 2
+    assert "size_cm was None" in capsys.readouterr().err
+    assert _cli(*base, "--resume", "--huber-delta", "0.05") == 0
+    with pytest.raises(SystemExit) as bad:
+        _cli(*base, "--huber-delta", "0")
+    assert bad.value.code == 2 and "--huber-delta" in capsys.readouterr().err
+
+
 # ----------------------------------------------------------------------------- learning check
 
 

@@ -3,7 +3,7 @@ AC-MLP-WM or the causal Transformer W_T) on a built dataset.
 
     rmi train-wm --model ac-gru --data DATASET --out RUN [--size 8|10|12]
                  [--state-groups LS|LS+G|LS+G+C|ALL] [--shuffle-actions] [--epochs N]
-                 [--seed S] [--resume] [--debug]
+                 [--water-weight W] [--huber-delta D] [--seed S] [--resume] [--debug]
 
 The run directory gets config.json (model architecture, training settings, data path, size,
 state groups, shuffle flag and the dataset's standardisation statistics), model.safetensors
@@ -38,6 +38,18 @@ DEFAULTS: dict[str, dict[str, Any]] = {
         "water_weight": 8.0,
     },
 }
+#: Settings of a run that ``--resume`` must repeat (they shape the data or the loss).
+RESUME_FIXED = (
+    "size_cm",
+    "state_groups",
+    "shuffle_actions",
+    "debug",
+    "tf_epochs",
+    "water_weight",
+    "huber_delta",
+)
+#: Values of those settings in runs written before they were recorded.
+RESUME_LEGACY: dict[str, Any] = {"huber_delta": 1.0}
 #: Debug mode: windows kept from each split, batch size, teacher-forcing decay epochs.
 DEBUG_TRAIN_WINDOWS = 256
 DEBUG_VAL_WINDOWS = 32
@@ -89,6 +101,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="loss weight of the retained-water channel (default: 8 for the Transformer, "
         "1 otherwise, as in the paper)",
     )
+    parser.add_argument(
+        "--huber-delta",
+        type=positive,
+        default=None,
+        help="Huber loss threshold in standardised units (default 1, torch's): errors "
+        "above it are weighed linearly, below it quadratically",
+    )
     parser.add_argument("--batch-size", type=count(1), default=128)
     parser.add_argument(
         "--steps-per-epoch",
@@ -139,6 +158,7 @@ def run(args: argparse.Namespace) -> int:
             batch_size=args.batch_size,
             steps_per_epoch=args.steps_per_epoch,
             water_weight=args.water_weight,
+            huber_delta=args.huber_delta,
             lr=args.lr,
             val_windows=args.val_windows,
             seed=args.seed,
@@ -193,6 +213,7 @@ def train(
     batch_size: int = 128,
     steps_per_epoch: int | None = None,
     water_weight: float | None = None,
+    huber_delta: float | None = None,
     lr: float | None = None,
     val_windows: int | None = 4096,
     seed: int = 0,
@@ -212,7 +233,9 @@ def train(
     validation free-rollout water MAE (g) at 1.28 s (Transformer: mean over
     0.16/0.32/0.64/1.28 s). Linear-ARX is fitted in closed form; the Baseline only
     writes its config. ``model_args`` overrides constructor arguments (e.g. ``hidden``,
-    ``d_model``); an unknown name raises TypeError.
+    ``d_model``); an unknown name raises TypeError. ``huber_delta`` is the Huber threshold
+    in standardised units (default 1). ``resume`` refuses settings of :data:`RESUME_FIXED`
+    that differ from the first call's.
     """
     import torch
 
@@ -276,6 +299,9 @@ def train(
     if water_weight is None:
         water_weight = float(d.get("water_weight", 1.0))
     extra["water_weight"] = water_weight
+    if huber_delta is None:
+        huber_delta = float(d.get("huber_delta", 1.0))
+    extra["huber_delta"] = huber_delta
     cw = torch.ones(N_Z)
     cw[WATER] = water_weight
     cfg = TrainConfig(
@@ -310,11 +336,18 @@ def train(
             tf_prob=tf,
         )
         loss, logs = wm_loss(
-            o, batch, channel_weight=cw.to(o["z"].device), z_keep=m.z_keep, classify=m.classify
+            o,
+            batch,
+            channel_weight=cw.to(o["z"].device),
+            z_keep=m.z_keep,
+            classify=m.classify,
+            huber_delta=huber_delta,
         )
         logs["tf_prob"] = tf
         return loss, logs
 
+    if resume:
+        _check_resume_settings(out, extra)
     trainer = Trainer(
         net,
         loss_fn,
@@ -331,6 +364,21 @@ def train(
     summary["params"] = count_parameters(net)
     summary["wall_s"] = time.perf_counter() - t0
     return summary
+
+
+def _check_resume_settings(out: Path, extra: dict[str, Any]) -> None:
+    """ValueError naming the first of :data:`RESUME_FIXED` that differs from the run in
+    ``out`` (nothing to check when ``out`` holds no run yet)."""
+    from rmi_learn.training import CONFIG_FILE, read_config
+
+    if not (out / CONFIG_FILE).is_file():
+        return
+    old = {**RESUME_LEGACY, **(read_config(out).get("extra") or {})}
+    for key in RESUME_FIXED:
+        if key in old and old[key] != extra[key]:
+            raise ValueError(
+                f"cannot resume {out}: {key} was {old[key]!r} in the first call, now {extra[key]!r}"
+            )
 
 
 def _closed_form(
