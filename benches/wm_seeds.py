@@ -18,12 +18,15 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import torch
 
-STEPS = (8, 16, 32, 64)
+from rmi_learn.wm_eval import HORIZON_STEPS as STEPS
+from rmi_learn.wm_eval import horizon_label
+
 SIZES = (8, 10, 12)
 
 
@@ -39,7 +42,7 @@ def average_forecasts(outs: list[dict[str, torch.Tensor]]) -> dict[str, torch.Te
 class Average(torch.nn.Module):
     """A world model whose forecast is :func:`average_forecasts` of ``members``."""
 
-    def __init__(self, members: list[torch.nn.Module]) -> None:
+    def __init__(self, members: Sequence[torch.nn.Module]) -> None:
         super().__init__()
         self.members = torch.nn.ModuleList(members)
 
@@ -54,9 +57,8 @@ def evaluate(runs: list[str], data: str, split: str) -> dict[str, Any]:
     from rmi_learn import models
     from rmi_learn.dataset import load_dataset
     from rmi_learn.models.baseline import BaselineWM
-    from rmi_learn.wm_eval import HORIZON_STEPS, evaluate_rollouts
+    from rmi_learn.wm_eval import evaluate_rollouts
 
-    assert tuple(HORIZON_STEPS) == STEPS
     ds = load_dataset(data)
     members = [models.load(r)[0].eval() for r in runs]
     named: list[tuple[str, torch.nn.Module]] = [("Baseline", BaselineWM())]
@@ -89,8 +91,6 @@ def main(argv: list[str] | None = None) -> int:
         json.dump(res, sys.stdout, indent=1)
         print()
         return 0
-    from rmi_learn.wm_eval import horizon_label
-
     at = ", ".join(horizon_label(s) for s in STEPS)
     print(f"split {a.split}; water MAE (g) / force MAE (N) at {at}")
     for size, rows in res.items():
