@@ -595,6 +595,48 @@ def test_huber_delta_reaches_the_loss_and_is_fixed_on_resume(
     assert bad.value.code == 2 and "--huber-delta" in capsys.readouterr().err
 
 
+def test_eval_averages_runs_that_differ_only_in_the_seed(
+    synthetic_dataset_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    data = str(synthetic_dataset_dir)
+    for name, extra in (("s0", []), ("s1", ["--seed", "1"]), ("ww", ["--water-weight", "2"])):
+        argv = ("train-wm", "--model", "ac-mlp", "--data", data, "--out", str(tmp_path / name))
+        assert _cli(*argv, "--debug", "--no-progress", *extra) == 0
+
+    def table3(*names: str) -> list[dict[str, Any]]:
+        out = tmp_path / ("tables-" + "-".join(names))
+        runs = [str(tmp_path / n) for n in names]
+        argv = ("eval-wm", "--runs", *runs, "--data", data, "--out", str(out), "--no-latency")
+        assert _cli(*argv) == 0
+        rows: list[dict[str, Any]] = json.loads((out / "table3.json").read_text())["horizons"][
+            "0.64 s"
+        ]
+        return rows
+
+    one, two, both = table3("s0"), table3("s1"), table3("s0", "s1")
+    sizes = [k for k, v in both[2].items() if k != "method" and v["water (g)"] is not None]
+    assert sizes
+    for s in sizes:
+        for col in ("water (g)", "force (N)"):
+            mean = (one[2][s][col] + two[2][s][col]) / 2
+            assert both[2][s][col] == pytest.approx(mean, rel=1e-12)
+        assert one[2][s]["water (g)"] != two[2][s]["water (g)"]
+    md = (tmp_path / "tables-s0-s1" / "table3.md").read_text()
+    assert "AC-MLP-WM: mean over training runs that differ only in the seed" in md
+    assert "(seeds 0, 1)" in md
+    res = json.loads((tmp_path / "tables-s0-s1" / "results.json").read_text())
+    mlp = [r for r in res if r["kind"] == "ac-mlp"]
+    assert all(r["seeds"] == [0, 1] and len(r["metrics_per_seed"]) == 2 for r in mlp)
+    # Runs that differ in anything but the seed are still refused.
+    capsys.readouterr()
+    argv = ("eval-wm", "--runs", str(tmp_path / "s0"), str(tmp_path / "ww"), "--data", data)
+    assert _cli(*argv, "--out", str(tmp_path / "bad"), "--no-latency") == 2
+    assert "differ in more than the training seed" in capsys.readouterr().err
+    argv = ("eval-wm", "--runs", str(tmp_path / "s0"), str(tmp_path / "s0"), "--data", data)
+    assert _cli(*argv, "--out", str(tmp_path / "bad"), "--no-latency") == 2
+    assert "with seed 0" in capsys.readouterr().err
+
+
 # ----------------------------------------------------------------------------- learning check
 
 

@@ -71,7 +71,7 @@ BEST_WEIGHTS = "model.safetensors"
 LAST_WEIGHTS = "last.safetensors"
 
 #: TrainConfig fields that may differ between the first call and a resume.
-_RESUME_FREE = {"progress", "device", "log_every"}
+RESUME_FREE = {"progress", "device", "log_every"}
 
 
 @dataclass
@@ -489,8 +489,8 @@ class Trainer:
             )
         defaults = TrainConfig().to_json()
         old_train = {**defaults, **(old.get("train") or {})}
-        old_t = {k: v for k, v in old_train.items() if k not in _RESUME_FREE}
-        new_t = {k: v for k, v in new["train"].items() if k not in _RESUME_FREE}
+        old_t = {k: v for k, v in old_train.items() if k not in RESUME_FREE}
+        new_t = {k: v for k, v in new["train"].items() if k not in RESUME_FREE}
         if old_t != json.loads(json.dumps(new_t)):
             diff = sorted(k for k in set(old_t) | set(new_t) if old_t.get(k) != new_t.get(k))
             raise ValueError(f"cannot resume {self.out_dir}: training settings differ in {diff}")

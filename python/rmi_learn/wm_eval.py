@@ -276,6 +276,30 @@ def reduction_vs_baseline(results: list[dict[str, Any]], step: int = MAIN_STEP) 
     return out
 
 
+def _seed_notes(
+    results: list[dict[str, Any]], rows: Sequence[tuple[str, dict[str, Any]]]
+) -> list[str]:
+    """Markdown lines naming the rows whose cells are means over training seeds, with the
+    per-seed water error at 0.64 s (the spread that one training run can move a cell)."""
+    lines = []
+    for label, key in rows:
+        parts = []
+        for s in SIZES:
+            rec = _lookup(results, size_cm=s, **key)
+            if rec is None or "metrics_per_seed" not in rec:
+                continue
+            seeds = ", ".join(str(x) for x in rec["seeds"])
+            vals = " / ".join(_fmt(m[f"water_mae_g@{MAIN_STEP}"]) for m in rec["metrics_per_seed"])
+            parts.append(f"{s} cm (seeds {seeds}) {vals}")
+        if parts:
+            lines += [
+                f"{label}: mean over training runs that differ only in the seed; water (g) at "
+                f"{horizon_label(MAIN_STEP)} per run: {'; '.join(parts)}.",
+                "",
+            ]
+    return lines
+
+
 def write_tables(results: list[dict[str, Any]], out_dir: str | Path) -> dict[str, Path]:
     """Write table2/table3/table4 as .md and .json (all horizons; 0.64 s first) plus
     results.json with every record. Returns the written paths by name."""
@@ -315,6 +339,7 @@ def write_tables(results: list[dict[str, Any]], out_dir: str | Path) -> dict[str
                     f"{k}: {'–' if v is None else f'{100 * v:.0f} %'}" for k, v in red.items()
                 )
                 md += [f"AC-GRU-WM water error reduction vs Baseline: {txt}", ""]
+        md += _seed_notes(results, rows)
         md += [
             "Water MAE in grams, force MAE in newtons, fric. = balanced accuracy over the four "
             "friction classes; '–' = no run for that cell. Shuffled-A rows were trained and "

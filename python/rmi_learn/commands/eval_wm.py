@@ -7,7 +7,9 @@ ablation) as Markdown and JSON, at 0.64 s and also 0.16/0.32/1.28 s, per sponge 
 
 Each run is evaluated on the sizes it was trained on (its ``--size``, or every size). A run
 trained with ``--shuffle-actions`` is evaluated with shuffled test chunks as well. The
-Baseline needs no run: it is always evaluated. Errors are in physical units (g, N).
+Baseline needs no run: it is always evaluated. Errors are in physical units (g, N). Runs
+of one model that differ only in ``--seed`` fill one cell with the mean of their errors;
+the tables then list each run's 0.64 s water error below them.
 """
 
 from __future__ import annotations
@@ -88,8 +90,11 @@ def evaluate_runs(
     ``latency_ms_8x32`` and ``metrics`` (see :class:`rmi_learn.wm_eval.RolloutMetrics`).
 
     When several runs give the same (model, state groups, shuffle, size) cell, a run trained
-    on that size alone wins over one trained on every size; two equally specific runs are an
-    error. The Baseline is added for every size when no baseline run is given.
+    on that size alone wins over one trained on every size. Equally specific runs that differ
+    only in their training seed are replicates: the cell's ``metrics`` are the mean of theirs
+    (``metrics_per_seed``, ``seeds`` and ``run_dirs`` list them); equally specific runs that
+    differ in anything else are an error. The Baseline is added for every size when no
+    baseline run is given.
     """
     import numpy as np
 
@@ -102,7 +107,7 @@ def evaluate_runs(
     ds = load_dataset(data)
     stats = ds.stats
     sizes = sorted(int(s) for s in ds.runs["size_cm"].unique().to_list())
-    chosen: dict[tuple[str, str, bool, int], tuple[bool, dict[str, Any], Any]] = {}
+    chosen: dict[tuple[str, str, bool, int], tuple[bool, dict[str, Any], list[Any], Any]] = {}
     entries: list[tuple[Any, dict[str, Any], str]] = []
     for run_dir in runs:
         model, cfg = load(run_dir)
@@ -129,11 +134,22 @@ def evaluate_runs(
             key = (kind, groups, shuffled, s)
             specific = trained_size is not None
             if key in chosen:
-                old_specific, old_rec, _ = chosen[key]
+                old_specific, old_rec, members, old_cfg = chosen[key]
                 if old_specific == specific:
-                    raise ValueError(
-                        f"two runs for {key}: {old_rec['run_dir']} and {run_dir}; pass one"
-                    )
+                    if _setting(old_cfg) != _setting(cfg):
+                        raise ValueError(
+                            f"two runs for {key}: {old_rec['run_dir']} and {run_dir} differ "
+                            "in more than the training seed; pass one"
+                        )
+                    if extra.get("seed") in old_rec["seeds"]:
+                        raise ValueError(
+                            f"two runs for {key} with seed {extra.get('seed')}: "
+                            f"{old_rec['run_dir']} and {run_dir}; pass one"
+                        )
+                    old_rec["run_dirs"].append(run_dir)
+                    old_rec["seeds"].append(extra.get("seed"))
+                    members.append(model)
+                    continue
                 if old_specific:
                     continue
             rec = {
@@ -144,23 +160,38 @@ def evaluate_runs(
                 "size_cm": s,
                 "trained_size_cm": trained_size,
                 "run_dir": run_dir,
+                "run_dirs": [run_dir],
+                "seeds": [extra.get("seed")],
                 "split": split,
                 "params": count_parameters(model),
             }
-            chosen[key] = (specific, rec, model)
+            chosen[key] = (specific, rec, [model], cfg)
 
     results = []
     latency_cache: dict[int, float] = {}
-    for (_, _, shuffled, s), (_, rec, model) in chosen.items():
+    for (_, _, shuffled, s), (_, rec, members, _) in chosen.items():
         ws: Any = ds.windows(split, size_cm=s)
         if len(ws) == 0:
             continue
         if shuffled:
             ws = ShuffledActions(ws, seed=shuffle_seed)
-        model.to(device)
-        rec["metrics"] = evaluate_rollouts(
-            model, ws, stats.z_std, batch_size=batch_size, max_windows=max_windows, device=device
-        )
+        per_seed = []
+        for model in members:
+            model.to(device)
+            per_seed.append(
+                evaluate_rollouts(
+                    model,
+                    ws,
+                    stats.z_std,
+                    batch_size=batch_size,
+                    max_windows=max_windows,
+                    device=device,
+                )
+            )
+        rec["metrics"] = {k: float(np.mean([m[k] for m in per_seed])) for k in per_seed[0]}
+        if len(per_seed) > 1:
+            rec["metrics_per_seed"] = per_seed
+        model = members[0]
         if latency and device == "cpu":
             if id(model) not in latency_cache:
                 latency_cache[id(model)] = benchmark_latency(model)
@@ -168,3 +199,14 @@ def evaluate_runs(
         results.append(rec)
     results.sort(key=lambda r: (r["size_cm"], r["kind"], r["state_groups"], r["shuffled"]))
     return results
+
+
+def _setting(cfg: dict[str, Any]) -> dict[str, Any]:
+    """What a run's config says of its model and training, less the seed (and the dataset
+    path: the standardisation statistics are checked against the dataset instead)."""
+    from rmi_learn.training import RESUME_FREE
+
+    train = {k: v for k, v in (cfg.get("train") or {}).items() if k not in RESUME_FREE}
+    train.pop("seed", None)
+    extra = {k: v for k, v in (cfg.get("extra") or {}).items() if k not in ("seed", "data")}
+    return {"model": cfg.get("model"), "train": train, "extra": extra}
