@@ -386,6 +386,10 @@ class Trainer:
         extra_config: any other JSON to store (data path, size, ...), config["extra"].
         hooks: :class:`Hook` instances (EMA, ...).
         resume: continue the run found in ``out_dir`` instead of refusing to touch it.
+        resume_fixed: keys of ``extra_config`` that a resume must repeat (settings that shape
+            the data or the loss); the model and optimisation settings always must.
+        resume_legacy: values of ``resume_fixed`` keys assumed for a first call that did not
+            record them.
     """
 
     def __init__(
@@ -401,6 +405,8 @@ class Trainer:
         extra_config: dict[str, Any] | None = None,
         hooks: Sequence[Hook] = (),
         resume: bool = False,
+        resume_fixed: Sequence[str] = (),
+        resume_legacy: dict[str, Any] | None = None,
     ) -> None:
         self.config = config
         self.cfg = config.effective()
@@ -413,6 +419,8 @@ class Trainer:
         self.extra_config = extra_config or {}
         self.hooks = list(hooks)
         self.resume = resume
+        self.resume_fixed = tuple(resume_fixed)
+        self.resume_legacy = resume_legacy or {}
         if len(train_data) == 0:
             raise ValueError("the training data set is empty")
         if self.cfg.select_mode not in ("min", "max"):
@@ -494,6 +502,13 @@ class Trainer:
         if old_t != json.loads(json.dumps(new_t)):
             diff = sorted(k for k in set(old_t) | set(new_t) if old_t.get(k) != new_t.get(k))
             raise ValueError(f"cannot resume {self.out_dir}: training settings differ in {diff}")
+        old_extra = {**self.resume_legacy, **(old.get("extra") or {})}
+        for key in self.resume_fixed:
+            if key in old_extra and old_extra[key] != new["extra"][key]:
+                raise ValueError(
+                    f"cannot resume {self.out_dir}: {key} was {old_extra[key]!r} in the first "
+                    f"call, now {new['extra'][key]!r}"
+                )
 
     def _save_checkpoint(self) -> None:
         ckpt = {

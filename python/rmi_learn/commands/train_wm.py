@@ -346,8 +346,6 @@ def train(
         logs["tf_prob"] = tf
         return loss, logs
 
-    if resume:
-        _check_resume_settings(out, extra)
     trainer = Trainer(
         net,
         loss_fn,
@@ -358,27 +356,14 @@ def train(
         model_config=net.config(),
         extra_config=extra,
         resume=resume,
+        resume_fixed=RESUME_FIXED,
+        resume_legacy=RESUME_LEGACY,
     )
     t0 = time.perf_counter()
     summary = trainer.fit()
     summary["params"] = count_parameters(net)
     summary["wall_s"] = time.perf_counter() - t0
     return summary
-
-
-def _check_resume_settings(out: Path, extra: dict[str, Any]) -> None:
-    """ValueError naming the first of :data:`RESUME_FIXED` that differs from the run in
-    ``out`` (nothing to check when ``out`` holds no run yet)."""
-    from rmi_learn.training import CONFIG_FILE, read_config
-
-    if not (out / CONFIG_FILE).is_file():
-        return
-    old = {**RESUME_LEGACY, **(read_config(out).get("extra") or {})}
-    for key in RESUME_FIXED:
-        if key in old and old[key] != extra[key]:
-            raise ValueError(
-                f"cannot resume {out}: {key} was {old[key]!r} in the first call, now {extra[key]!r}"
-            )
 
 
 def _closed_form(
