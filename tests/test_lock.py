@@ -25,10 +25,9 @@ lock = load_tool()
 
 def pins() -> dict[str, str]:
     out = {}
-    for line in (ROOT / "requirements-dev.txt").read_text().splitlines():
-        if line and not line.startswith("#"):
-            name, version = line.split("==")
-            out[lock.canonical(name)] = version
+    for line in lock.pin_lines(lock.LOCK.read_text()):
+        name, version = line.split("==")
+        out[lock.canonical(name)] = version
     return out
 
 

@@ -49,6 +49,11 @@ def pins_from_report(report: dict[str, Any]) -> list[str]:
     return [pins[k] for k in sorted(pins)]
 
 
+def pin_lines(text: str) -> list[str]:
+    """The `name==version` lines of a requirements file, in file order."""
+    return [ln for ln in text.splitlines() if "==" in ln and not ln.startswith("#")]
+
+
 def header(text: str) -> list[str]:
     """The leading comment block of a requirements file (comments and blank lines)."""
     out = []
@@ -80,8 +85,8 @@ def main() -> int:
     tmp = LOCK.with_suffix(".tmp")
     tmp.write_text("\n".join(lines) + "\n")
     os.replace(tmp, LOCK)
-    before = {ln for ln in old.splitlines() if "==" in ln and not ln.startswith("#")}
-    after = {ln for ln in lines if "==" in ln and not ln.startswith("#")}
+    before = set(pin_lines(old))
+    after = set(pin_lines("\n".join(lines)))
     for ln in sorted(before - after):
         print(f"- {ln}")
     for ln in sorted(after - before):
