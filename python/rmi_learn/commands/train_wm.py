@@ -48,8 +48,10 @@ RESUME_FIXED = (
     "water_weight",
     "huber_delta",
 )
+#: Huber threshold of the loss in standardised units (torch's default).
+HUBER_DELTA = 1.0
 #: Values of those settings in runs written before they were recorded.
-RESUME_LEGACY: dict[str, Any] = {"huber_delta": 1.0}
+RESUME_LEGACY: dict[str, Any] = {"huber_delta": HUBER_DELTA}
 #: Debug mode: windows kept from each split, batch size, teacher-forcing decay epochs.
 DEBUG_TRAIN_WINDOWS = 256
 DEBUG_VAL_WINDOWS = 32
@@ -104,7 +106,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--huber-delta",
         type=positive,
-        default=None,
+        default=HUBER_DELTA,
         help="Huber loss threshold in standardised units (default 1, torch's): errors "
         "above it are weighed linearly, below it quadratically",
     )
@@ -213,7 +215,7 @@ def train(
     batch_size: int = 128,
     steps_per_epoch: int | None = None,
     water_weight: float | None = None,
-    huber_delta: float | None = None,
+    huber_delta: float = HUBER_DELTA,
     lr: float | None = None,
     val_windows: int | None = 4096,
     seed: int = 0,
@@ -299,8 +301,6 @@ def train(
     if water_weight is None:
         water_weight = float(d.get("water_weight", 1.0))
     extra["water_weight"] = water_weight
-    if huber_delta is None:
-        huber_delta = float(d.get("huber_delta", 1.0))
     extra["huber_delta"] = huber_delta
     cw = torch.ones(N_Z)
     cw[WATER] = water_weight
