@@ -557,6 +557,9 @@ def test_cli_debug_train_eval_and_load(synthetic_dataset_dir: Path, tmp_path: Pa
     assert t4[0]["8cm"]["water (g)"] is not None and t4[1]["8cm"]["water (g)"] is None
     md = (out / "table2.md").read_text()
     assert "| AC-GRU-WM, shuffled A |" in md and "## Horizon 1.28 s" in md
+    # Every record names its dataset and split seed, which benches/wm_splits.py labels by.
+    results = json.loads((out / "results.json").read_text())
+    assert {(r["data"], r["split_seed"]) for r in results} == {(data, 0)}
 
 
 def test_huber_delta_reaches_the_loss_and_is_fixed_on_resume(

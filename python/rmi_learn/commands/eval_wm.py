@@ -86,7 +86,8 @@ def evaluate_runs(
     shuffle_seed: int = 12345,
 ) -> list[dict[str, Any]]:
     """One record per (run, sponge size): ``method``, ``kind``, ``state_groups``,
-    ``shuffled``, ``size_cm``, ``trained_size_cm``, ``run_dir``, ``split``, ``params``,
+    ``shuffled``, ``size_cm``, ``trained_size_cm``, ``run_dir``, ``split``, ``data`` (the
+    dataset directory), ``split_seed`` (its ``rmi dataset --seed``), ``params``,
     ``latency_ms_8x32`` and ``metrics`` (see :class:`rmi_learn.wm_eval.RolloutMetrics`).
 
     When several runs give the same (model, state groups, shuffle, size) cell, a run trained
@@ -163,6 +164,8 @@ def evaluate_runs(
                 "run_dirs": [run_dir],
                 "seeds": [extra.get("seed")],
                 "split": split,
+                "data": str(data),
+                "split_seed": ds.info.get("seed"),
                 "params": count_parameters(model),
             }
             chosen[key] = (specific, rec, [model], cfg)
