@@ -1,0 +1,139 @@
+"""Where in the sponge does the released water start? (issues 2 and 3)
+
+Runs one scripted grasp-lift-squeeze trial through ``rmi_sph.Simulation`` and sorts the pore
+water by its initial depth below the sponge's surface (the skeleton's rest box, grown by one
+particle radius to the block's faces). For each depth band it prints the water that started
+there and the part of it that is no longer retained when the trial ends. At a converged
+resolution the release would not depend on how many particle layers the surface band holds;
+``benches/resolution.py`` shows that the amount does, and this shows from where it comes.
+
+    .venv/bin/python benches/drain_depth.py --radius 0.008 [--size 8] [--porosity 0.7] \\
+        [--hold 140] [--squeeze 150] [--seed 0] [--threads 2] [--json]
+
+Phases are the study grid's (settle 0.05 s, ramp 1 s, hold 1 s, gate 0.5 s, wait 0.3 s,
+squeeze ramp 0.8 s and hold 1.5 s) at dt = 1 ms, as in ``benches/grids/resolution/``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+#: Depth bands (m) below the sponge's surface (the last one reaches past any sponge's centre).
+BANDS_M: tuple[tuple[float, float], ...] = ((0.0, 0.01), (0.01, 0.02), (0.02, 1.0))
+
+#: The study grid's phase timings (s).
+STUDY_PHASES = {
+    "settle_time": 0.05,
+    "ramp_time": 1.0,
+    "hold_time": 1.0,
+    "gate_timeout": 0.5,
+    "wait_time": 0.3,
+    "squeeze_ramp_time": 0.8,
+    "squeeze_hold_time": 1.5,
+}
+
+
+def depths(x0: np.ndarray, rest_positions: np.ndarray, radius: float) -> np.ndarray:
+    """Depth (m) of each point of ``x0`` (N, 3) below the nearest face of the skeleton's
+    rest box grown by ``radius`` (the block's faces); negative outside it."""
+    lo = rest_positions.min(axis=0) - radius
+    hi = rest_positions.max(axis=0) + radius
+    return np.minimum((x0 - lo).min(axis=1), (hi - x0).min(axis=1))
+
+
+def release_by_depth(
+    depth: np.ndarray,
+    mass: np.ndarray,
+    retained: np.ndarray,
+    bands: Sequence[tuple[float, float]] = BANDS_M,
+) -> list[dict[str, float]]:
+    """Per band ``[lo, hi)``: ``water_g`` that started there and ``released_g`` of it that is
+    not retained at the end (particles that started outside the block are left out)."""
+    out = []
+    for lo, hi in bands:
+        band = (depth >= lo) & (depth < hi)
+        out.append(
+            {
+                "lo_m": lo,
+                "hi_m": hi,
+                "water_g": 1000.0 * float(mass[band].sum()),
+                "released_g": 1000.0 * float(mass[band & ~retained].sum()),
+            }
+        )
+    return out
+
+
+def run(a: argparse.Namespace) -> dict[str, Any]:
+    """The trial of ``a``'s options; the initial depth of every fluid particle, matched by id
+    with its retained flag at the end."""
+    import rmi_sph
+
+    cfg = rmi_sph.trial_config(
+        a.size, a.porosity, a.hold, a.squeeze, radius=a.radius, seed=a.seed, dt=1e-3, **STUDY_PHASES
+    )
+    sim = rmi_sph.Simulation(cfg, num_threads=a.threads)
+    rest = np.asarray(sim.particles("solid")["rest_positions"])
+    f0 = sim.particles("fluid")
+    order0 = np.argsort(np.asarray(f0["id"]))
+    depth = depths(np.asarray(f0["positions"]), rest, a.radius)[order0]
+    mass = np.asarray(f0["mass"])[order0]
+    t0 = time.perf_counter()
+    while sim.observation()["phase"] != "done":
+        sim.step(200)
+    f1 = sim.particles("fluid")
+    retained = np.asarray(f1["retained"]).astype(bool)[np.argsort(np.asarray(f1["id"]))]
+    return {
+        "radius_m": a.radius,
+        "size_cm": a.size,
+        "wall_s": time.perf_counter() - t0,
+        "bands": release_by_depth(depth, mass, retained),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--radius", type=float, required=True, help="particle radius (m)")
+    ap.add_argument("--size", type=int, default=8, choices=(8, 10, 12), help="sponge (cm)")
+    ap.add_argument("--porosity", type=float, default=0.7)
+    ap.add_argument("--hold", type=float, default=140.0, help="holding force (N)")
+    ap.add_argument("--squeeze", type=float, default=150.0, help="squeeze force (N)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--json", action="store_true", help="print the result as JSON")
+    a = ap.parse_args(argv)
+    try:
+        res = run(a)
+    except ValueError as exc:  # rmi_sph.ConfigError names the field and its range
+        print(f"drain_depth: {exc}", file=sys.stderr)
+        return 2
+    if a.json:
+        json.dump(res, sys.stdout, indent=1)
+        print()
+        return 0
+    total = sum(b["water_g"] for b in res["bands"])
+    gone = sum(b["released_g"] for b in res["bands"])
+    print(
+        f"{a.size} cm, r = {1000 * a.radius:g} mm: {total:.0f} g of pore water, "
+        f"{gone:.1f} g released ({res['wall_s']:.0f} s)"
+    )
+    for b in res["bands"]:
+        share = 100 * b["released_g"] / b["water_g"] if b["water_g"] else 0.0
+        band = f"{1000 * b['lo_m']:.0f}-{1000 * b['hi_m']:.0f} mm"
+        if b["hi_m"] >= 1.0:
+            band = f">= {1000 * b['lo_m']:.0f} mm"
+        print(
+            f"  depth {band:9s}: water {b['water_g']:6.1f} g, "
+            f"released {b['released_g']:6.1f} g ({share:.0f} %)"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
