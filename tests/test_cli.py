@@ -33,6 +33,21 @@ def test_dataset_names_a_missing_run_directory(
     assert not (tmp_path / "ds").exists()
 
 
+def test_dataset_build_options_may_stand_before_or_after_the_subcommand(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    missing = tmp_path / "runs"
+    for argv in (
+        ["dataset", "--runs", str(missing), "--out", str(tmp_path / "ds"), "build"],
+        ["dataset", "--runs", str(missing), "build", "--out", str(tmp_path / "ds")],
+    ):
+        assert main(argv) == 2
+        assert f"{missing} is not a directory of runs" in capsys.readouterr().err
+    assert main(["dataset", "build", "--runs", str(missing)]) == 2
+    assert "give --runs DIR and --out DIR" in capsys.readouterr().err
+    assert not (tmp_path / "ds").exists()
+
+
 def test_an_output_path_that_is_a_file_is_reported(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

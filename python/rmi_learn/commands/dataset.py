@@ -13,18 +13,23 @@ from rmi_learn.commands import InputError
 from rmi_learn.commands.argtypes import count
 
 
-def _build_args(p: argparse.ArgumentParser, required: bool) -> None:
-    p.add_argument("--runs", required=required, metavar="DIR", help="directory of run files")
-    p.add_argument("--out", required=required, metavar="DIR", help="dataset directory")
-    p.add_argument("--seed", type=count(0), default=0, help="split seed (default 0)")
+def _build_args(p: argparse.ArgumentParser, sub: bool) -> None:
+    # On the subcommand an option that is not given must not overwrite the one given before
+    # it (`rmi dataset --runs R --out D build`), so its default is "absent".
+    none: object = argparse.SUPPRESS if sub else None
+    p.add_argument("--runs", default=none, metavar="DIR", help="directory of run files")
+    p.add_argument("--out", default=none, metavar="DIR", help="dataset directory")
+    seed_default: object = argparse.SUPPRESS if sub else 0
+    p.add_argument("--seed", type=count(0), default=seed_default, help="split seed (default 0)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Subcommands ``build`` and ``info``; bare options mean ``build``."""
-    _build_args(parser, required=False)
+    """Subcommands ``build`` and ``info``; bare options mean ``build``, and the build options
+    may stand before or after ``build``."""
+    _build_args(parser, sub=False)
     sub = parser.add_subparsers(dest="dataset_command", metavar="{build,info}")
     b = sub.add_parser("build", help="resample runs to 20 ms, split, standardise, cache")
-    _build_args(b, required=True)
+    _build_args(b, sub=True)
     i = sub.add_parser("info", help="print counts and statistics of a built dataset")
     i.add_argument("dir", metavar="DIR", help="dataset directory")
     i.add_argument("--json", action="store_true", help="print the full JSON summary")
