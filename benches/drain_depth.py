@@ -10,8 +10,8 @@ resolution the release would not depend on how many particle layers the surface 
     .venv/bin/python benches/drain_depth.py --radius 0.008 [--size 8] [--porosity 0.7] \\
         [--hold 140] [--squeeze 150] [--seed 0] [--threads 2] [--json]
 
-Phases are the study grid's (settle 0.05 s, ramp 1 s, hold 1 s, gate 0.5 s, wait 0.3 s,
-squeeze ramp 0.8 s and hold 1.5 s) at dt = 1 ms, as in ``benches/grids/resolution/``.
+Phases and time step are those of ``benches/grids/resolution/`` (the study's phases at the
+engine's default dt = 1 ms), read from its grid file.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import json
 import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -28,16 +29,8 @@ import numpy as np
 #: Depth bands (m) below the sponge's surface (the last one reaches past any sponge's centre).
 BANDS_M: tuple[tuple[float, float], ...] = ((0.0, 0.01), (0.01, 0.02), (0.02, 1.0))
 
-#: The study grid's phase timings (s).
-STUDY_PHASES = {
-    "settle_time": 0.05,
-    "ramp_time": 1.0,
-    "hold_time": 1.0,
-    "gate_timeout": 0.5,
-    "wait_time": 0.3,
-    "squeeze_ramp_time": 0.8,
-    "squeeze_hold_time": 1.5,
-}
+#: The resolution series' grid, whose settings (the study's phases, the engine's dt) the trial uses.
+SERIES_GRID = Path(__file__).resolve().parent / "grids" / "resolution" / "r8mm.json"
 
 
 def depths(x0: np.ndarray, rest_positions: np.ndarray, radius: float) -> np.ndarray:
@@ -74,9 +67,11 @@ def run(a: argparse.Namespace) -> dict[str, Any]:
     """The trial of ``a``'s options; the initial depth of every fluid particle, matched by id
     with its retained flag at the end."""
     import rmi_sph
+    from rmi_learn.sweep import load_grid
 
+    phases = load_grid(path=SERIES_GRID)["overrides"]
     cfg = rmi_sph.trial_config(
-        a.size, a.porosity, a.hold, a.squeeze, radius=a.radius, seed=a.seed, dt=1e-3, **STUDY_PHASES
+        a.size, a.porosity, a.hold, a.squeeze, radius=a.radius, seed=a.seed, **phases
     )
     sim = rmi_sph.Simulation(cfg, num_threads=a.threads)
     rest = np.asarray(sim.particles("solid")["rest_positions"])

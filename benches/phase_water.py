@@ -17,17 +17,10 @@ import time
 from typing import Any
 
 import rmi_sph
+from rmi_learn.sweep import load_grid
 
-STUDY_TIMING: dict[str, Any] = {
-    "dt": 0.002,
-    "settle_time": 0.05,
-    "ramp_time": 1.0,
-    "hold_time": 1.0,
-    "gate_timeout": 0.5,
-    "wait_time": 0.3,
-    "squeeze_ramp_time": 0.8,
-    "squeeze_hold_time": 1.5,
-}
+#: The study grid's dt and phase timings, read from its preset.
+STUDY_TIMING: dict[str, Any] = load_grid("study")["overrides"]
 
 
 def removed_per_phase(spec: dict[str, Any], threads: int) -> str:

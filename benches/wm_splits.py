@@ -23,7 +23,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from rmi_learn.wm_eval import MAIN_STEP, SIZES, horizon_label
+from rmi_learn.wm_eval import MAIN_STEP, SIZES, horizon_label, lookup
 
 #: The rows compared, keyed as in ``rmi eval-wm``'s results.json.
 ROWS: dict[str, dict[str, Any]] = {
@@ -51,28 +51,31 @@ def load(table_dir: str | Path) -> list[dict[str, Any]]:
     return json.loads(path.read_text(encoding="utf-8"))
 
 
-def label(table_dir: str | Path, records: list[dict[str, Any]]) -> str:
-    """``split seed S (DIR)`` from the records (``rmi eval-wm`` writes ``split_seed``), or the
-    directory alone for tables written before it did."""
+def split_seed(table_dir: str | Path, records: list[dict[str, Any]]) -> Any:
+    """The split seed ``rmi eval-wm`` recorded in ``records`` (``split_seed``), or None for
+    tables written before it did; several seeds in one table are an error."""
     seeds = {r.get("split_seed") for r in records} - {None}
     if len(seeds) > 1:
         raise ValueError(f"{table_dir}: records from several split seeds {sorted(seeds)}")
-    return f"split seed {seeds.pop()} ({table_dir})" if seeds else str(table_dir)
+    return seeds.pop() if seeds else None
 
 
 def load_tables(table_dirs: list[str]) -> dict[str, list[dict[str, Any]]]:
-    """``{label: records}`` of several ``rmi eval-wm`` outputs, refusing two tables of one split
-    seed (the same held-out runs counted twice)."""
+    """``{label: records}`` of several ``rmi eval-wm`` outputs, labelled ``split seed S (DIR)``
+    (or ``DIR`` without a recorded seed), refusing two tables of one split seed (the same
+    held-out runs counted twice)."""
     tables: dict[str, list[dict[str, Any]]] = {}
     seen: dict[Any, str] = {}
     for t in table_dirs:
         recs = load(t)
-        seed = next((r["split_seed"] for r in recs if r.get("split_seed") is not None), None)
-        if seed is not None and seed in seen:
+        seed = split_seed(t, recs)
+        if seed is None:
+            tables[str(t)] = recs
+            continue
+        if seed in seen:
             raise ValueError(f"{seen[seed]} and {t} both evaluate split seed {seed}")
-        if seed is not None:
-            seen[seed] = t
-        tables[label(t, recs)] = recs
+        seen[seed] = t
+        tables[f"split seed {seed} ({t})"] = recs
     return tables
 
 
@@ -82,14 +85,7 @@ def cells(records: list[dict[str, Any]], step: int) -> dict[int, dict[str, dict[
     for size in SIZES:
         row_cells = {}
         for name, key in ROWS.items():
-            rec = next(
-                (
-                    r
-                    for r in records
-                    if r.get("size_cm") == size and all(r.get(k) == v for k, v in key.items())
-                ),
-                None,
-            )
+            rec = lookup(records, size_cm=size, **key)
             if rec is None:
                 continue
             m = rec["metrics"]

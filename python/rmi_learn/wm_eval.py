@@ -186,7 +186,9 @@ def _fmt(v: float | None, digits: int = 2) -> str:
     return f"{v:.{digits}f}"
 
 
-def _lookup(results: list[dict[str, Any]], **key: Any) -> dict[str, Any] | None:
+def lookup(results: list[dict[str, Any]], **key: Any) -> dict[str, Any] | None:
+    """The first record of ``results`` whose fields equal ``key`` (e.g. ``size_cm=8,
+    kind="baseline"``), or None."""
     for r in results:
         if all(r.get(k) == v for k, v in key.items()):
             return r
@@ -212,7 +214,7 @@ def table_rows(
     for label, key in rows:
         row: dict[str, Any] = {"method": label}
         for s in sizes:
-            rec = _lookup(results, size_cm=s, **key)
+            rec = lookup(results, size_cm=s, **key)
             row[f"{s}cm"] = {col: _metric(rec, f"{m}@{step}") for col, m in metrics}
         out.append(row)
     return out
@@ -267,9 +269,9 @@ def reduction_vs_baseline(results: list[dict[str, Any]], step: int = MAIN_STEP) 
     0.6 = 60 % lower error), at ``step``."""
     out: dict[str, Any] = {}
     for s in SIZES:
-        base = _metric(_lookup(results, size_cm=s, kind="baseline"), f"water_mae_g@{step}")
+        base = _metric(lookup(results, size_cm=s, kind="baseline"), f"water_mae_g@{step}")
         ac = _metric(
-            _lookup(results, size_cm=s, kind="ac-gru", state_groups="ALL", shuffled=False),
+            lookup(results, size_cm=s, kind="ac-gru", state_groups="ALL", shuffled=False),
             f"water_mae_g@{step}",
         )
         out[f"{s}cm"] = (1.0 - ac / base) if (base and ac is not None and base > 0) else None
@@ -285,7 +287,7 @@ def _seed_notes(
     for label, key in rows:
         parts = []
         for s in SIZES:
-            rec = _lookup(results, size_cm=s, **key)
+            rec = lookup(results, size_cm=s, **key)
             if rec is None or "metrics_per_seed" not in rec:
                 continue
             seeds = ", ".join(str(x) for x in rec["seeds"])
