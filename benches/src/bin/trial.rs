@@ -7,7 +7,9 @@
 //! `trial --config FILE [--threads 2] --profile` runs the trial of a TrialConfig JSON file
 //! (e.g. `json.dumps(rmi_sph.trial_config(...))`) and prints, per controller phase, the
 //! steps, wall time per stage of the step and the mean solver iterations: where a trial's
-//! time goes.
+//! time goes. `trial --config FILE --plate-load` prints instead, per phase, the mean normal
+//! (squeeze-axis) load on a plate (N) and the part of it the skeleton's contacts carry; the
+//! rest is water pressing on the plates through the boundary pressure.
 
 use rmi_benches::{fail, Args};
 use rmi_sph::presets::SPONGE_SIZES;
@@ -29,7 +31,7 @@ fn main() {
             "--config",
             "--every",
         ],
-        &["--dry", "--profile"],
+        &["--dry", "--profile", "--plate-load"],
     );
     let size = match args.value("--size", 10u32) {
         8 => SPONGE_SIZES[0],
@@ -57,6 +59,10 @@ fn main() {
     }
     if args.flag("--profile") {
         profile(cfg, threads);
+        return;
+    }
+    if args.flag("--plate-load") {
+        plate_load(cfg, threads);
         return;
     }
     let every: usize = args.value("--every", 50);
@@ -170,5 +176,38 @@ fn profile(cfg: TrialConfig, threads: usize) {
             pc.cg_iterations as f64 / k,
             pc.response_iterations as f64 / k
         );
+    }
+}
+
+/// Per phase: mean normal load (N) on a plate and the part the skeleton's contacts carry.
+fn plate_load(cfg: TrialConfig, threads: usize) {
+    let mut trial = Trial::new(cfg, Some(threads)).unwrap_or_else(|e| fail(&e.to_string()));
+    // (phase, steps, total load, skeleton contact load), phases in the order reached.
+    let mut phases: Vec<(String, usize, f64, f64)> = Vec::new();
+    while !trial.finished() {
+        let name = trial.phase().name().to_string();
+        if let Err(e) = trial.step() {
+            eprintln!("error: {e}");
+            std::process::exit(1);
+        }
+        let (sim, g) = (trial.simulation(), trial.gripper());
+        let (mut total, mut skeleton) = (0.0, 0.0);
+        for b in [g.left, g.right] {
+            // The squeeze axis is x: the normal load, without friction and weight.
+            total += sim.boundary().bodies[b].force.x.abs();
+            skeleton += sim.skeleton_contact_force(b).x.abs();
+        }
+        if phases.last().is_none_or(|p| p.0 != name) {
+            phases.push((name, 0, 0.0, 0.0));
+        }
+        let p = phases.last_mut().unwrap();
+        p.1 += 1;
+        p.2 += total / 2.0;
+        p.3 += skeleton / 2.0;
+    }
+    println!("{:>8} {:>6} {:>10} {:>12} {:>10}", "phase", "steps", "plate_N", "skeleton_N", "water_N");
+    for (name, n, total, skeleton) in phases {
+        let n = n as f64;
+        println!("{name:>8} {:>6} {:>10.1} {:>12.1} {:>10.1}", n, total / n, skeleton / n, (total - skeleton) / n);
     }
 }

@@ -237,6 +237,19 @@ impl Simulation {
         &self.contacts
     }
 
+    /// Force (N) that skeleton particles exerted on body `bi` through their normal contacts
+    /// in the last step. The body's total force (`boundary().bodies[bi].force`) adds the
+    /// water's pressure and viscosity, fluid contacts and friction; the difference tells how
+    /// much of a plate's load the water carries instead of the skeleton.
+    pub fn skeleton_contact_force(&self, bi: usize) -> Vector3<f64> {
+        let nf = self.p.n_fluid as u32;
+        self.contacts
+            .iter()
+            .filter(|c| c.body as usize == bi && c.particle >= nf)
+            .map(|c| -c.normal * c.normal_force)
+            .sum()
+    }
+
     /// Particle radius r in m.
     pub fn radius(&self) -> f64 {
         self.cfg.particle_radius

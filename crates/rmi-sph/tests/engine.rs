@@ -176,3 +176,28 @@ fn retained_liquid_is_the_water_inside_the_sponge() {
     let nearest = slab.iter().map(|&a| sim.skeleton_cover()[a]).fold(0.0, f64::max);
     assert!(nearest > 0.0, "the slab must lie within the skeleton's kernel support");
 }
+
+/// A dry sponge on a floor loads it only through its skeleton's contacts; saturated, the
+/// pore water carries part of the load (the skeleton rests on the water film), and the
+/// contact share says how much.
+#[test]
+fn skeleton_contact_force_splits_a_body_load() {
+    for saturated in [false, true] {
+        let mut cfg = small_sponge();
+        cfg.scene.porous_blocks[0].saturated = saturated;
+        let mut sim = Simulation::new(cfg, Some(2)).unwrap();
+        run(&mut sim, 200);
+        let total = sim.boundary().bodies[0].force;
+        let skeleton = sim.skeleton_contact_force(0);
+        let weight = 9.81 * sim.particles().mass.iter().sum::<f64>();
+        assert!(total.z < -0.5 * weight, "the floor carries the sponge: {total:?} for {weight} N");
+        if saturated {
+            assert!(skeleton.z.abs() < 0.5 * total.z.abs(), "saturated: skeleton {skeleton:?} of {total:?}");
+        } else {
+            assert!((skeleton - total).norm() <= 1e-12 * total.norm(), "dry: skeleton {skeleton:?} vs total {total:?}");
+        }
+    }
+    // Another body index carries nothing.
+    let sim = Simulation::new(small_sponge(), Some(1)).unwrap();
+    assert_eq!(sim.skeleton_contact_force(5), nalgebra::Vector3::zeros());
+}

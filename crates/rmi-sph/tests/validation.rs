@@ -349,3 +349,211 @@ fn resting_sponge_floor_load_equals_weight() {
         }
     }
 }
+
+/// What a hanging, saturated skeleton keeps after draining under gravity, at radius `r` (m).
+struct Drained {
+    /// Fraction of the pore water still retained at the end.
+    kept: f64,
+    /// Change of that fraction over the last second (equilibrium check).
+    last_second: f64,
+    /// Height (m) above the bottom face up to which the layer-averaged skeleton saturation
+    /// stays >= 0.9, interpolated between layer centres.
+    saturated_height: f64,
+    /// Layer-averaged saturation from the bottom layer up.
+    profile: Vec<f64>,
+    /// Initial pore water (kg).
+    water: f64,
+    /// Mass of one water particle (kg).
+    particle: f64,
+}
+
+/// Height (m) of the saturated zone of a profile of layer saturations (layer k centred at
+/// (k + 1/2) d above the bottom face): where it first falls below `level`, interpolated.
+fn saturated_height(profile: &[f64], d: f64, level: f64) -> f64 {
+    match profile.iter().position(|&s| s < level) {
+        None => profile.len() as f64 * d,
+        Some(0) => 0.0,
+        Some(k) => {
+            let (above, below) = (profile[k], profile[k - 1]);
+            (k as f64 - 0.5) * d + d * (below - level) / (below - above)
+        }
+    }
+}
+
+/// An 8 x 8 x 20 cm fixed skeleton of `material` saturated and hung 10 cm above the floor of
+/// a tank, drained for `seconds` (at least 1 s).
+fn drain_hanging_block(r: f64, material: PorousMaterial, seconds: f64) -> Drained {
+    let (z0, height) = (0.10, 0.20);
+    let mut cfg = SimConfig { particle_radius: r, dt: 1e-3, ..Default::default() };
+    cfg.scene.porous_blocks.push(PorousBlock {
+        min: [-0.04, -0.04, z0],
+        max: [0.04, 0.04, z0 + height],
+        material,
+        saturated: true,
+        fixed: true,
+    });
+    cfg.scene.bodies.push(BodyConfig {
+        name: "tank".into(),
+        shape: Shape::Container { half_extents: [0.2, 0.2, 0.25] },
+        position: [0.0, 0.0, 0.25],
+        rotation: [0.0; 3],
+        kinematic: false,
+    });
+    let mut sim = Simulation::new(cfg, Some(2)).unwrap();
+    let nf = sim.particles().n_fluid;
+    let m0: f64 = sim.particles().mass[..nf].iter().sum();
+    let particle = sim.particles().mass[0];
+    let kept = |sim: &Simulation| {
+        let p = sim.particles();
+        (0..nf).filter(|&a| sim.retained()[a]).map(|a| p.mass[a]).sum::<f64>() / m0
+    };
+    let steps = (seconds / 1e-3).round() as usize;
+    run(&mut sim, steps - 1000);
+    let before = kept(&sim);
+    run(&mut sim, 1000);
+    let d = 2.0 * r;
+    let layers = (height / d).round() as usize;
+    let mut acc = vec![(0.0, 0.0); layers];
+    let p = sim.particles();
+    for a in nf..p.len() {
+        // The skeleton is pinned: its layers stay where they were sampled.
+        let k = (((p.x[a].z - z0) / d).floor() as usize).min(layers - 1);
+        acc[k].0 += sim.fields().saturation[a];
+        acc[k].1 += 1.0;
+    }
+    let profile: Vec<f64> = acc.iter().map(|&(s, n): &(f64, f64)| s / n).collect();
+    let after = kept(&sim);
+    Drained {
+        kept: after,
+        last_second: after - before,
+        saturated_height: saturated_height(&profile, d, 0.9),
+        profile,
+        water: m0,
+        particle,
+    }
+}
+
+/// The retention case's skeleton: phi = 0.6 and the default adhesion, with a permeability
+/// (3e-8 m^2) above the sponge's default so that drainage settles within seconds; it sets
+/// how fast the water leaves, not where it stops, which adhesion decides.
+fn retention_material() -> PorousMaterial {
+    PorousMaterial { porosity: 0.6, permeability: 3e-8, ..Default::default() }
+}
+
+/// The column a saturated outer surface holds by adhesion, physics.md sec. 3.2:
+/// h_ret = alpha c_rho (1 - a_f) m2 / (3 V rho_f g), with m2 = 0.225 H^2 and alpha scaled
+/// with the spacing, so that h_ret does not depend on the resolution (m).
+fn retained_height_estimate(m: &PorousMaterial, rho_f: f64, r: f64) -> f64 {
+    let d = 2.0 * r;
+    let alpha = m.adhesion * d / m.adhesion_reference_spacing;
+    let c_rho = (rho_f + m.dry_density) / (rho_f * m.porosity + m.dry_density);
+    let m2 = 0.225 * (4.0 * r).powi(2);
+    alpha * c_rho * (1.0 - m.adhesion_falloff) * m2 / (3.0 * d.powi(3) * rho_f * G)
+}
+
+fn report_drained(r: f64, o: &Drained, h_ret: f64) {
+    let s: Vec<String> = o.profile.iter().map(|s| format!("{s:.2}")).collect();
+    println!(
+        "surface retention, r = {:.1} mm: kept {:.1} % (last second {:+.2} %), saturated height {:.1} cm vs h_ret {:.1} cm ({:+.0} %); layer saturation {}",
+        1e3 * r,
+        100.0 * o.kept,
+        100.0 * o.last_second,
+        100.0 * o.saturated_height,
+        100.0 * h_ret,
+        100.0 * (o.saturated_height / h_ret - 1.0),
+        s.join(" ")
+    );
+}
+
+/// Surface retention (physics.md sec. 3.2 and 5.7): a saturated skeleton hung in air
+/// drains from its bottom face until adhesion holds the rest. The continuum estimate says a
+/// saturated column of h_ret (10.1 cm here) stays above the bottom face, the same at every
+/// resolution because alpha is rescaled with the spacing. Checked: the block settles, keeps
+/// a saturated zone within 30 % of h_ret (a rough estimate: it integrates the kernel over a
+/// continuum and ignores the partly drained zone above), and the retained water agrees
+/// between the study grids' r = 8 mm and r = 5 mm to 0.1 of the pore water.
+#[test]
+fn surface_retention_under_gravity() {
+    let radii = [0.008, 0.005];
+    let h_ret = retained_height_estimate(&retention_material(), 1000.0, 0.005);
+    let out: Vec<Drained> = radii.iter().map(|&r| drain_hanging_block(r, retention_material(), 6.0)).collect();
+    for (r, o) in radii.iter().zip(&out) {
+        report_drained(*r, o, h_ret);
+    }
+    let height_err = out.iter().map(|o| (o.saturated_height / h_ret - 1.0).abs()).fold(0.0, f64::max);
+    let spread = (out[0].kept - out[1].kept).abs();
+    // Settled: the last second drains under a tenth of all that drained (at r = 8 mm the
+    // water leaves as single 4 g drops, 0.6 % of it each, so an absolute rate is too coarse).
+    let settled = out.iter().all(|o| o.last_second.abs() < 0.1 * (1.0 - o.kept));
+    let drains = out.iter().all(|o| o.kept > 0.5 && o.kept < 0.95);
+    record(
+        "surface retention",
+        "fixed saturated 8 x 8 x 20 cm skeleton hung in air, phi = 0.6, k = 3e-8 m^2, alpha = 21 N/m at d = 5 mm, a_f = 0.5, 6 s; r = 8 / 5 mm",
+        &format!(
+            "saturated height {:.1} / {:.1} cm; water kept {:.0} / {:.0} %",
+            100.0 * out[0].saturated_height,
+            100.0 * out[1].saturated_height,
+            100.0 * out[0].kept,
+            100.0 * out[1].kept
+        ),
+        &format!("h_ret = {:.1} cm (physics.md 3.2, rough); same at both radii", 100.0 * h_ret),
+        &format!("{:.0} % at most; kept differs by {:.2}", 100.0 * height_err, spread),
+        settled && drains && height_err < 0.3 && spread < 0.1,
+    );
+    assert!(settled, "still draining in the last second");
+    assert!(drains, "the block must lose its top water and keep the bottom: kept {} / {}", out[0].kept, out[1].kept);
+    assert!(height_err < 0.3, "saturated height off h_ret by {height_err}");
+    assert!(spread < 0.1, "retained water differs by {spread} of the pore water between r = 8 and 5 mm");
+}
+
+/// The same drainage at r = 4 and 2.5 mm (minutes; `cargo test --release -p rmi-sph --test
+/// validation -- --ignored --nocapture`), for the resolution series in the README.
+#[test]
+#[ignore]
+fn surface_retention_refined() {
+    let h_ret = retained_height_estimate(&retention_material(), 1000.0, 0.005);
+    for r in [0.004, 0.0025] {
+        let o = drain_hanging_block(r, retention_material(), 6.0);
+        report_drained(r, &o, h_ret);
+        assert!(o.last_second.abs() < 0.1 * (1.0 - o.kept), "still draining at r = {r}");
+    }
+}
+
+/// The same hung block with the sponges' own skeleton (phi = 0.7, k = 3e-11 m^2): free
+/// drainage is bounded by Darcy's superficial speed q = k rho g / mu through the bottom face,
+/// a few grams in 3 s, at r = 8 and 5 mm alike. (So the water a gripped sponge releases in a
+/// trial is pressed out, not drained; benches/RESULTS.md, stop 30.)
+#[test]
+fn hung_sponge_drains_no_faster_than_darcy() {
+    let material = PorousMaterial { porosity: 0.7, ..Default::default() };
+    let fluid = SimConfig::default().fluid;
+    let (seconds, area, rho, mu) = (3.0, 0.08 * 0.08, fluid.density, fluid.darcy_viscosity);
+    let bound = rho * material.permeability * rho * G / mu * area * seconds;
+    let mut released_g = Vec::new();
+    let mut pass = true;
+    for r in [0.008, 0.005] {
+        let o = drain_hanging_block(r, material.clone(), seconds);
+        let released = (1.0 - o.kept) * o.water;
+        println!("hung sponge, r = {:.1} mm: released {:.1} g of {:.0} g in {seconds} s, Darcy bound {:.1} g (one particle {:.1} g)", 1e3 * r, 1e3 * released, 1e3 * o.water, 1e3 * bound, 1e3 * o.particle);
+        // One particle of slack: the release is counted in whole particles.
+        pass &= released <= bound + o.particle;
+        released_g.push(format!("{:.1} g", 1e3 * released));
+    }
+    record(
+        "hung sponge drainage",
+        "the same hung block with the sponges' skeleton, phi = 0.7, k = 3e-11 m^2, 3 s; r = 8 / 5 mm",
+        &format!("released {}", released_g.join(" / ")),
+        &format!("at most rho k rho g / mu x area x t = {:.1} g", 1e3 * bound),
+        "within (one particle of slack)",
+        pass,
+    );
+    assert!(pass, "released {released_g:?} above Darcy's {bound} kg");
+}
+
+#[test]
+fn saturated_height_interpolates_the_crossing() {
+    // Layers of 1 cm: 1.0 at 0.5 cm, 0.8 at 1.5 cm -> 0.9 crossed at 1.0 cm.
+    assert!((saturated_height(&[1.0, 0.8, 0.2], 0.01, 0.9) - 0.01).abs() < 1e-12);
+    assert_eq!(saturated_height(&[0.5, 1.0], 0.01, 0.9), 0.0);
+    assert!((saturated_height(&[1.0, 1.0], 0.01, 0.9) - 0.02).abs() < 1e-12);
+}

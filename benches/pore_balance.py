@@ -1,0 +1,139 @@
+"""Water a gripped sponge releases against the pore volume it closes (issues 2 and 3).
+
+A saturated sponge under compression keeps its pores full: the water it can release is the
+pore volume the skeleton closes (plus what free drainage lets through, nothing at the
+sponges' permeability; see the "hung sponge drainage" validation case). Released water above
+rho_f times the closed pore volume means the pores empty while gripped, which a sponge under
+positive pore pressure cannot do. This runs one scripted grasp-lift-squeeze trial through
+``rmi_sph.Simulation`` and prints, per controller phase, the retained water M_L and the pore
+volume V_pore at the phase's first and last sample, and the ratio of the water released to
+the pore volume closed since the plates closed.
+
+    .venv/bin/python benches/pore_balance.py --radius 0.008 [--size 8] [--porosity 0.7] \\
+        [--hold 140] [--squeeze 150] [--seed 0] [--threads 2] [--every 50] [--json]
+
+Phases and time step are those of ``benches/grids/resolution/`` (the study's phases at the
+engine's default dt = 1 ms), read from its grid file, as in ``benches/drain_depth.py``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+#: The resolution series' grid, whose settings (the study's phases, the engine's dt) the trial uses.
+SERIES_GRID = Path(__file__).resolve().parent / "grids" / "resolution" / "r8mm.json"
+
+#: Density of water (kg/m^3) for turning a pore volume into the water it holds.
+RHO_WATER = 1000.0
+
+
+def per_phase(samples: Sequence[tuple[str, float, float]]) -> list[dict[str, Any]]:
+    """Per run of equal phase in ``samples`` (phase, M_L in kg, V_pore in m^3, in time
+    order): the first and last retained water (g) and pore volume (cm^3), and the water
+    released and pore volume closed within it."""
+    out = []
+    for phase, grp in itertools.groupby(samples, key=lambda s: s[0]):
+        g = list(grp)
+        (_, m0, v0), (_, m1, v1) = g[0], g[-1]
+        out.append(
+            {
+                "phase": phase,
+                "water_g": (1e3 * m0, 1e3 * m1),
+                "pore_cm3": (1e6 * v0, 1e6 * v1),
+                "released_g": 1e3 * (m0 - m1),
+                "closed_cm3": 1e6 * (v0 - v1),
+            }
+        )
+    return out
+
+
+def balance(samples: Sequence[tuple[str, float, float]], since: str = "close") -> dict[str, float]:
+    """Water released (g) and pore volume closed (cm^3) from the first sample of phase
+    ``since`` to the last sample, and their ratio in g per g of closed pores (inf when no
+    pore volume closed)."""
+    start = next((k for k, s in enumerate(samples) if s[0] == since), None)
+    if start is None:
+        raise ValueError(f"no sample of phase {since!r}")
+    (_, m0, v0), (_, m1, v1) = samples[start], samples[-1]
+    released = 1e3 * (m0 - m1)
+    closed = 1e6 * (v0 - v1)
+    closed_g = closed * RHO_WATER / 1e3
+    ratio = released / closed_g if closed_g > 0 else float("inf")
+    return {"released_g": released, "closed_cm3": closed, "ratio": ratio}
+
+
+def run(a: argparse.Namespace) -> dict[str, Any]:
+    """The trial of ``a``'s options, sampled every ``a.every`` steps."""
+    import rmi_sph
+    from rmi_learn.sweep import load_grid
+
+    phases = load_grid(path=SERIES_GRID)["overrides"]
+    cfg = rmi_sph.trial_config(
+        a.size, a.porosity, a.hold, a.squeeze, radius=a.radius, seed=a.seed, **phases
+    )
+    sim = rmi_sph.Simulation(cfg, num_threads=a.threads)
+    t0 = time.perf_counter()
+    samples = []
+    while True:
+        o = sim.observation()
+        samples.append((str(o["phase"]), float(o["M_L"]), float(o["V_pore"])))
+        if o["phase"] == "done":
+            break
+        sim.step(a.every)
+    return {
+        "radius_m": a.radius,
+        "size_cm": a.size,
+        "wall_s": time.perf_counter() - t0,
+        "phases": per_phase(samples),
+        "since_close": balance(samples),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--radius", type=float, required=True, help="particle radius (m)")
+    ap.add_argument("--size", type=int, default=8, choices=(8, 10, 12), help="sponge (cm)")
+    ap.add_argument("--porosity", type=float, default=0.7)
+    ap.add_argument("--hold", type=float, default=140.0, help="holding force (N)")
+    ap.add_argument("--squeeze", type=float, default=150.0, help="squeeze force (N)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--every", type=int, default=50, help="steps between samples")
+    ap.add_argument("--json", action="store_true", help="print the result as JSON")
+    a = ap.parse_args(argv)
+    if a.every < 1:
+        print(f"pore_balance: --every must be >= 1 (got {a.every})", file=sys.stderr)
+        return 2
+    try:
+        res = run(a)
+    except ValueError as exc:  # rmi_sph.ConfigError names the field and its range
+        print(f"pore_balance: {exc}", file=sys.stderr)
+        return 2
+    if a.json:
+        json.dump(res, sys.stdout, indent=1)
+        print()
+        return 0
+    print(f"{a.size} cm, r = {1000 * a.radius:g} mm ({res['wall_s']:.0f} s)")
+    for p in res["phases"]:
+        print(
+            f"  {p['phase']:8s} water {p['water_g'][0]:6.0f} -> {p['water_g'][1]:6.0f} g "
+            f"(released {p['released_g']:6.1f}), pores {p['pore_cm3'][0]:6.0f} -> "
+            f"{p['pore_cm3'][1]:6.0f} cm^3 (closed {p['closed_cm3']:6.1f})"
+        )
+    b = res["since_close"]
+    print(
+        f"  since the plates closed: released {b['released_g']:.1f} g, pores closed "
+        f"{b['closed_cm3']:.1f} cm^3: {b['ratio']:.2f} g per g of closed pores"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
