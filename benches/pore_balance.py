@@ -10,7 +10,10 @@ volume V_pore at the phase's first and last sample, and the ratio of the water r
 the pore volume closed since the plates closed.
 
     .venv/bin/python benches/pore_balance.py --radius 0.008 [--size 8] [--porosity 0.7] \\
-        [--hold 140] [--squeeze 150] [--seed 0] [--threads 2] [--every 50] [--json]
+        [--hold 140] [--squeeze 150] [--seed 0] [--gap G] [--threads 2] [--every 50] [--json]
+
+``--gap`` sets the gripper's initial gap to the sponge's faces (m; the engine's default is
+5 mm): at coarse radii the plates' boundary reaches the pore water from a gap of 3r on.
 
 Phases and time step are those of ``benches/grids/resolution/`` (the study's phases at the
 engine's default dt = 1 ms), read from its grid file, as in ``benches/drain_depth.py``.
@@ -74,9 +77,11 @@ def run(a: argparse.Namespace) -> dict[str, Any]:
     import rmi_sph
     from rmi_learn.sweep import load_grid
 
-    phases = load_grid(path=SERIES_GRID)["overrides"]
+    overrides = dict(load_grid(path=SERIES_GRID)["overrides"])
+    if a.gap is not None:
+        overrides["gripper"] = {**overrides.get("gripper", {}), "gap": a.gap}
     cfg = rmi_sph.trial_config(
-        a.size, a.porosity, a.hold, a.squeeze, radius=a.radius, seed=a.seed, **phases
+        a.size, a.porosity, a.hold, a.squeeze, radius=a.radius, seed=a.seed, **overrides
     )
     sim = rmi_sph.Simulation(cfg, num_threads=a.threads)
     t0 = time.perf_counter()
@@ -90,6 +95,7 @@ def run(a: argparse.Namespace) -> dict[str, Any]:
     return {
         "radius_m": a.radius,
         "size_cm": a.size,
+        "gap_m": a.gap,
         "wall_s": time.perf_counter() - t0,
         "phases": per_phase(samples),
         "since_close": balance(samples),
@@ -104,6 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--hold", type=float, default=140.0, help="holding force (N)")
     ap.add_argument("--squeeze", type=float, default=150.0, help="squeeze force (N)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--gap", type=float, default=None, help="gripper's initial gap (m)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--every", type=int, default=50, help="steps between samples")
     ap.add_argument("--json", action="store_true", help="print the result as JSON")

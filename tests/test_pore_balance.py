@@ -56,3 +56,6 @@ def test_bad_options_are_clear_errors(
     assert "--every" in capsys.readouterr().err
     assert m.main(["--radius", "0.5"]) == 2
     assert "particle_radius" in capsys.readouterr().err
+    # The gap reaches the engine's gripper config, whose range check names it.
+    assert m.main(["--radius", "0.008", "--gap", "0.5"]) == 2
+    assert "gripper.gap" in capsys.readouterr().err
