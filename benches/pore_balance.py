@@ -10,7 +10,12 @@ volume V_pore at the phase's first and last sample, and the ratio of the water r
 the pore volume closed since the plates closed.
 
     .venv/bin/python benches/pore_balance.py --radius 0.008 [--size 8] [--porosity 0.7] \\
-        [--hold 140] [--squeeze 150] [--seed 0] [--gap G] [--threads 2] [--every 50] [--json]
+        [--hold 140] [--squeeze 150] [--seed 0] [--gap G] [--layers] [--threads 2] \\
+        [--every 50] [--json]
+
+``--layers`` adds, at the start of each phase (the last, done, is the end), the mean
+saturation of each layer of skeleton particles across the squeeze axis (x), from the left
+plate to the right: where in the sponge the pores empty.
 
 ``--gap`` sets the gripper's initial gap to the sponge's faces (m; the engine's default is
 5 mm): at coarse radii the plates' boundary reaches the pore water from a gap of 3r on.
@@ -29,6 +34,8 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 #: The resolution series' grid, whose settings (the study's phases, the engine's dt) the trial uses.
 SERIES_GRID = Path(__file__).resolve().parent / "grids" / "resolution" / "r8mm.json"
@@ -72,6 +79,15 @@ def balance(samples: Sequence[tuple[str, float, float]], since: str = "close") -
     return {"released_g": released, "closed_cm3": closed, "ratio": ratio}
 
 
+def layer_saturation(rest_x: np.ndarray, saturation: np.ndarray) -> list[tuple[float, float]]:
+    """(rest x in m, mean saturation) of each layer of skeleton particles that share a rest
+    x coordinate (to 1e-6 m), ordered along x."""
+    key = np.round(np.asarray(rest_x) / 1e-6).astype(np.int64)
+    layers = np.unique(key)
+    sat = np.asarray(saturation, dtype=float)
+    return [(float(k) * 1e-6, float(sat[key == k].mean())) for k in layers]
+
+
 def run(a: argparse.Namespace) -> dict[str, Any]:
     """The trial of ``a``'s options, sampled every ``a.every`` steps."""
     import rmi_sph
@@ -86,10 +102,20 @@ def run(a: argparse.Namespace) -> dict[str, Any]:
     sim = rmi_sph.Simulation(cfg, num_threads=a.threads)
     t0 = time.perf_counter()
     samples = []
+    layers: list[dict[str, Any]] = []
+
+    def record_layers(phase: str) -> None:
+        s = sim.particles("solid")
+        rest_x = np.asarray(s["rest_positions"])[:, 0]
+        layers.append({"phase": phase, "layers": layer_saturation(rest_x, s["saturation"])})
+
     while True:
         o = sim.observation()
-        samples.append((str(o["phase"]), float(o["M_L"]), float(o["V_pore"])))
-        if o["phase"] == "done":
+        phase = str(o["phase"])
+        if a.layers and (not samples or samples[-1][0] != phase):
+            record_layers(phase)
+        samples.append((phase, float(o["M_L"]), float(o["V_pore"])))
+        if phase == "done":
             break
         sim.step(a.every)
     return {
@@ -99,6 +125,7 @@ def run(a: argparse.Namespace) -> dict[str, Any]:
         "wall_s": time.perf_counter() - t0,
         "phases": per_phase(samples),
         "since_close": balance(samples),
+        "layer_saturation": layers,
     }
 
 
@@ -111,6 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--squeeze", type=float, default=150.0, help="squeeze force (N)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--gap", type=float, default=None, help="gripper's initial gap (m)")
+    ap.add_argument("--layers", action="store_true", help="saturation per skeleton layer in x")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--every", type=int, default=50, help="steps between samples")
     ap.add_argument("--json", action="store_true", help="print the result as JSON")
@@ -134,6 +162,11 @@ def main(argv: list[str] | None = None) -> int:
             f"(released {p['released_g']:6.1f}), pores {p['pore_cm3'][0]:6.0f} -> "
             f"{p['pore_cm3'][1]:6.0f} cm^3 (closed {p['closed_cm3']:6.1f})"
         )
+    if res["layer_saturation"]:
+        xs = " ".join(f"{1000 * x:6.0f}" for x, _ in res["layer_saturation"][0]["layers"])
+        print(f"  saturation per skeleton layer, rest x (mm): {xs}")
+        for row in res["layer_saturation"]:
+            print(f"    {row['phase']:8s} " + " ".join(f"{v:6.2f}" for _, v in row["layers"]))
     b = res["since_close"]
     print(
         f"  since the plates closed: released {b['released_g']:.1f} g, pores closed "

@@ -59,3 +59,13 @@ def test_bad_options_are_clear_errors(
     # The gap reaches the engine's gripper config, whose range check names it.
     assert m.main(["--radius", "0.008", "--gap", "0.5"]) == 2
     assert "gripper.gap" in capsys.readouterr().err
+
+
+def test_layer_saturation_groups_by_rest_x(bench_script: Callable[[str], Any]) -> None:
+    m = bench_script("pore_balance")
+    # Two layers (x = -0.01 and 0.01, the second with round-off), unordered input.
+    rest_x = [0.01, -0.01, 0.0100000001, -0.01]
+    sat = [0.4, 1.0, 0.6, 0.8]
+    layers = m.layer_saturation(rest_x, sat)
+    assert [x for x, _ in layers] == pytest.approx([-0.01, 0.01])
+    assert [s for _, s in layers] == pytest.approx([0.9, 0.5])
