@@ -11,7 +11,7 @@ resolution the release would not depend on how many particle layers the surface 
         [--hold 140] [--squeeze 150] [--seed 0] [--threads 2] [--json]
 
 Phases and time step are those of ``benches/grids/resolution/`` (the study's phases at the
-engine's default dt = 1 ms), read from its grid file.
+engine's default dt = 1 ms), read from its grid file by ``benches/series_trial.py``.
 """
 
 from __future__ import annotations
@@ -26,11 +26,13 @@ from typing import Any
 
 import numpy as np
 
+# The bench scripts are files, not a package: make their shared module importable however the
+# script is loaded (run from anywhere, or loaded by path in the tests).
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from series_trial import add_condition_args, trial_config  # noqa: E402
+
 #: Depth bands (m) below the sponge's surface (the last one reaches past any sponge's centre).
 BANDS_M: tuple[tuple[float, float], ...] = ((0.0, 0.01), (0.01, 0.02), (0.02, 1.0))
-
-#: The resolution series' grid, whose settings (the study's phases, the engine's dt) the trial uses.
-SERIES_GRID = Path(__file__).resolve().parent / "grids" / "resolution" / "r8mm.json"
 
 
 def depths(x0: np.ndarray, rest_positions: np.ndarray, radius: float) -> np.ndarray:
@@ -67,12 +69,8 @@ def run(a: argparse.Namespace) -> dict[str, Any]:
     """The trial of ``a``'s options; the initial depth of every fluid particle, matched by id
     with its retained flag at the end."""
     import rmi_sph
-    from rmi_learn.sweep import load_grid
 
-    phases = load_grid(path=SERIES_GRID)["overrides"]
-    cfg = rmi_sph.trial_config(
-        a.size, a.porosity, a.hold, a.squeeze, radius=a.radius, seed=a.seed, **phases
-    )
+    cfg = trial_config(a)
     sim = rmi_sph.Simulation(cfg, num_threads=a.threads)
     rest = np.asarray(sim.particles("solid")["rest_positions"])
     f0 = sim.particles("fluid")
@@ -94,13 +92,7 @@ def run(a: argparse.Namespace) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--radius", type=float, required=True, help="particle radius (m)")
-    ap.add_argument("--size", type=int, default=8, choices=(8, 10, 12), help="sponge (cm)")
-    ap.add_argument("--porosity", type=float, default=0.7)
-    ap.add_argument("--hold", type=float, default=140.0, help="holding force (N)")
-    ap.add_argument("--squeeze", type=float, default=150.0, help="squeeze force (N)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--threads", type=int, default=2)
+    add_condition_args(ap)
     ap.add_argument("--json", action="store_true", help="print the result as JSON")
     a = ap.parse_args(argv)
     try:

@@ -21,7 +21,7 @@ plate to the right: where in the sponge the pores empty.
 5 mm): at coarse radii the plates' boundary reaches the pore water from a gap of 3r on.
 
 Phases and time step are those of ``benches/grids/resolution/`` (the study's phases at the
-engine's default dt = 1 ms), read from its grid file, as in ``benches/drain_depth.py``.
+engine's default dt = 1 ms), read from its grid file by ``benches/series_trial.py``.
 """
 
 from __future__ import annotations
@@ -37,8 +37,10 @@ from typing import Any
 
 import numpy as np
 
-#: The resolution series' grid, whose settings (the study's phases, the engine's dt) the trial uses.
-SERIES_GRID = Path(__file__).resolve().parent / "grids" / "resolution" / "r8mm.json"
+# The bench scripts are files, not a package: make their shared module importable however the
+# script is loaded (run from anywhere, or loaded by path in the tests).
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from series_trial import add_condition_args, trial_config  # noqa: E402
 
 #: Density of water (kg/m^3) for turning a pore volume into the water it holds.
 RHO_WATER = 1000.0
@@ -91,14 +93,8 @@ def layer_saturation(rest_x: np.ndarray, saturation: np.ndarray) -> list[tuple[f
 def run(a: argparse.Namespace) -> dict[str, Any]:
     """The trial of ``a``'s options, sampled every ``a.every`` steps."""
     import rmi_sph
-    from rmi_learn.sweep import load_grid
 
-    overrides = dict(load_grid(path=SERIES_GRID)["overrides"])
-    if a.gap is not None:
-        overrides["gripper"] = {**overrides.get("gripper", {}), "gap": a.gap}
-    cfg = rmi_sph.trial_config(
-        a.size, a.porosity, a.hold, a.squeeze, radius=a.radius, seed=a.seed, **overrides
-    )
+    cfg = trial_config(a, **({"gripper": {"gap": a.gap}} if a.gap is not None else {}))
     sim = rmi_sph.Simulation(cfg, num_threads=a.threads)
     t0 = time.perf_counter()
     samples = []
@@ -131,15 +127,9 @@ def run(a: argparse.Namespace) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--radius", type=float, required=True, help="particle radius (m)")
-    ap.add_argument("--size", type=int, default=8, choices=(8, 10, 12), help="sponge (cm)")
-    ap.add_argument("--porosity", type=float, default=0.7)
-    ap.add_argument("--hold", type=float, default=140.0, help="holding force (N)")
-    ap.add_argument("--squeeze", type=float, default=150.0, help="squeeze force (N)")
-    ap.add_argument("--seed", type=int, default=0)
+    add_condition_args(ap)
     ap.add_argument("--gap", type=float, default=None, help="gripper's initial gap (m)")
     ap.add_argument("--layers", action="store_true", help="saturation per skeleton layer in x")
-    ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--every", type=int, default=50, help="steps between samples")
     ap.add_argument("--json", action="store_true", help="print the result as JSON")
     a = ap.parse_args(argv)

@@ -183,9 +183,9 @@ fn profile(cfg: TrialConfig, threads: usize) {
 fn plate_load(cfg: TrialConfig, threads: usize) {
     let mut trial = Trial::new(cfg, Some(threads)).unwrap_or_else(|e| fail(&e.to_string()));
     // (phase, steps, total load, skeleton contact load), phases in the order reached.
-    let mut phases: Vec<(String, usize, f64, f64)> = Vec::new();
+    let mut phases: Vec<(&str, usize, f64, f64)> = Vec::new();
     while !trial.finished() {
-        let name = trial.phase().name().to_string();
+        let name = trial.phase().name();
         if let Err(e) = trial.step() {
             eprintln!("error: {e}");
             std::process::exit(1);
