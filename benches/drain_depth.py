@@ -17,7 +17,6 @@ engine's default dt = 1 ms), read from its grid file by ``benches/series_trial.p
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from collections.abc import Sequence
@@ -29,7 +28,7 @@ import numpy as np
 # The bench scripts are files, not a package: make their shared module importable however the
 # script is loaded (run from anywhere, or loaded by path in the tests).
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from series_trial import add_condition_args, trial_config  # noqa: E402
+from series_trial import add_condition_args, report, trial_config  # noqa: E402
 
 #: Depth bands (m) below the sponge's surface (the last one reaches past any sponge's centre).
 BANDS_M: tuple[tuple[float, float], ...] = ((0.0, 0.01), (0.01, 0.02), (0.02, 1.0))
@@ -90,20 +89,8 @@ def run(a: argparse.Namespace) -> dict[str, Any]:
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    add_condition_args(ap)
-    ap.add_argument("--json", action="store_true", help="print the result as JSON")
-    a = ap.parse_args(argv)
-    try:
-        res = run(a)
-    except ValueError as exc:  # rmi_sph.ConfigError names the field and its range
-        print(f"drain_depth: {exc}", file=sys.stderr)
-        return 2
-    if a.json:
-        json.dump(res, sys.stdout, indent=1)
-        print()
-        return 0
+def show(a: argparse.Namespace, res: dict[str, Any]) -> None:
+    """The result as text: the totals, then each depth band."""
     total = sum(b["water_g"] for b in res["bands"])
     gone = sum(b["released_g"] for b in res["bands"])
     print(
@@ -119,7 +106,12 @@ def main(argv: list[str] | None = None) -> int:
             f"  depth {band:9s}: water {b['water_g']:6.1f} g, "
             f"released {b['released_g']:6.1f} g ({share:.0f} %)"
         )
-    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_condition_args(ap)
+    return report("drain_depth", run, ap.parse_args(argv), show)
 
 
 if __name__ == "__main__":

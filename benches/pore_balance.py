@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
 import sys
 import time
 from collections.abc import Sequence
@@ -40,7 +39,7 @@ import numpy as np
 # The bench scripts are files, not a package: make their shared module importable however the
 # script is loaded (run from anywhere, or loaded by path in the tests).
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from series_trial import add_condition_args, trial_config  # noqa: E402
+from series_trial import add_condition_args, report, trial_config  # noqa: E402
 
 #: Density of water (kg/m^3) for turning a pore volume into the water it holds.
 RHO_WATER = 1000.0
@@ -125,26 +124,8 @@ def run(a: argparse.Namespace) -> dict[str, Any]:
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    add_condition_args(ap)
-    ap.add_argument("--gap", type=float, default=None, help="gripper's initial gap (m)")
-    ap.add_argument("--layers", action="store_true", help="saturation per skeleton layer in x")
-    ap.add_argument("--every", type=int, default=50, help="steps between samples")
-    ap.add_argument("--json", action="store_true", help="print the result as JSON")
-    a = ap.parse_args(argv)
-    if a.every < 1:
-        print(f"pore_balance: --every must be >= 1 (got {a.every})", file=sys.stderr)
-        return 2
-    try:
-        res = run(a)
-    except ValueError as exc:  # rmi_sph.ConfigError names the field and its range
-        print(f"pore_balance: {exc}", file=sys.stderr)
-        return 2
-    if a.json:
-        json.dump(res, sys.stdout, indent=1)
-        print()
-        return 0
+def show(a: argparse.Namespace, res: dict[str, Any]) -> None:
+    """The result as text: per phase, then the layers, then the balance since the close."""
     print(f"{a.size} cm, r = {1000 * a.radius:g} mm ({res['wall_s']:.0f} s)")
     for p in res["phases"]:
         print(
@@ -162,7 +143,19 @@ def main(argv: list[str] | None = None) -> int:
         f"  since the plates closed: released {b['released_g']:.1f} g, pores closed "
         f"{b['closed_cm3']:.1f} cm^3: {b['ratio']:.2f} g per g of closed pores"
     )
-    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_condition_args(ap)
+    ap.add_argument("--gap", type=float, default=None, help="gripper's initial gap (m)")
+    ap.add_argument("--layers", action="store_true", help="saturation per skeleton layer in x")
+    ap.add_argument("--every", type=int, default=50, help="steps between samples")
+    a = ap.parse_args(argv)
+    if a.every < 1:
+        print(f"pore_balance: --every must be >= 1 (got {a.every})", file=sys.stderr)
+        return 2
+    return report("pore_balance", run, a, show)
 
 
 if __name__ == "__main__":
