@@ -4,7 +4,7 @@
 //! solid see it in densities and the pressure solve) and also keeps its analytic shape, used
 //! for the velocity-level non-penetration of skeleton particles (physics.md sec. 3.7).
 
-use crate::config::{BodyConfig, Shape};
+use crate::config::{BodyConfig, Shape, WallLayer};
 use crate::grid::{bounds, Grid};
 use crate::kernel::CubicKernel;
 use nalgebra::{UnitQuaternion, Vector3};
@@ -63,25 +63,82 @@ pub struct Boundary {
     grid_valid: bool,
 }
 
-/// Samples the surface of a box of half extents `he` with spacing close to `d`.
+/// Samples the surface of a box of half extents `he` (m) with spacing close to `d`. An axis
+/// with a zero half extent is one plane: the box is then a single sheet of particles.
 fn sample_box_surface(he: &Vector3<f64>, d: f64) -> Vec<Vector3<f64>> {
-    let n: Vec<usize> = (0..3).map(|k| ((2.0 * he[k] / d).round() as usize).max(1)).collect();
+    let coords: Vec<Vec<f64>> = (0..3)
+        .map(|k| {
+            if he[k] == 0.0 {
+                return vec![0.0];
+            }
+            let n = ((2.0 * he[k] / d).round() as usize).max(1);
+            (0..=n).map(|i| -he[k] + 2.0 * he[k] * i as f64 / n as f64).collect()
+        })
+        .collect();
+    let flat = coords.iter().any(|c| c.len() == 1);
     let mut pts = Vec::new();
-    for i in 0..=n[0] {
-        for j in 0..=n[1] {
-            for l in 0..=n[2] {
-                let on = i == 0 || i == n[0] || j == 0 || j == n[1] || l == 0 || l == n[2];
-                if on {
-                    pts.push(Vector3::new(
-                        -he[0] + 2.0 * he[0] * i as f64 / n[0] as f64,
-                        -he[1] + 2.0 * he[1] * j as f64 / n[1] as f64,
-                        -he[2] + 2.0 * he[2] * l as f64 / n[2] as f64,
-                    ));
+    for (i, &x) in coords[0].iter().enumerate() {
+        for (j, &y) in coords[1].iter().enumerate() {
+            for (l, &z) in coords[2].iter().enumerate() {
+                let edge = |k: usize, q: usize| q == 0 || q + 1 == coords[k].len();
+                if flat || edge(0, i) || edge(1, j) || edge(2, l) {
+                    pts.push(Vector3::new(x, y, z));
                 }
             }
         }
     }
     pts
+}
+
+/// Depth (m) below a flat wall's surface at which its one layer of Akinci particles (volumes
+/// `1 / sum W` over the layer) gives water whose first lattice plane lies `d / 2` from the
+/// surface the density of the bulk lattice: 0.598 d for the cubic spline with H = 2 d.
+///
+/// One layer stands in for the whole half space behind it; on the surface it puts that
+/// water at 1.55 times the rest density, and water rests 1.1 d off the wall instead, while
+/// skeleton contacts hold a sponge's particles at d / 2. Found by bisection on the kernel's
+/// lattice sums (water lattice aligned with the layer).
+pub fn wall_depth(d: f64, kernel: &CubicKernel) -> f64 {
+    let reach = (kernel.support() / d).ceil() as i32 + 1;
+    // Sum of W over the square lattice of spacing d in a plane at height z above a point.
+    let plane = |z: f64| -> f64 {
+        let mut s = 0.0;
+        for i in -reach..=reach {
+            for j in -reach..=reach {
+                let (x, y) = (i as f64 * d, j as f64 * d);
+                s += kernel.w((x * x + y * y + z * z).sqrt());
+            }
+        }
+        s
+    };
+    let v = d * d * d;
+    let bulk: f64 = (-reach..=reach).map(|k| plane(k as f64 * d)).sum::<f64>() * v;
+    let half: f64 = (0..=reach).map(|k| plane(k as f64 * d)).sum::<f64>() * v;
+    let layer_volume = 1.0 / plane(0.0);
+    let density = |depth: f64| half + layer_volume * plane(0.5 * d + depth);
+    let (mut lo, mut hi) = (0.0, d);
+    for _ in 0..60 {
+        let mid = 0.5 * (lo + hi);
+        if density(mid) > bulk {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// Half extents (m) of the box on which a body's boundary particles are sampled: the shape
+/// shrunk (solid box) or grown (container) by `depth`. An axis along which a solid box is
+/// thinner than `2 depth + d` collapses to one plane through its centre, so that the two
+/// faces' layers do not lie within a spacing of each other and count twice.
+fn layer_half_extents(shape: &Shape, depth: f64, d: f64) -> Vector3<f64> {
+    match shape {
+        Shape::Box { half_extents } => {
+            Vector3::from(*half_extents).map(|h| if h - depth < 0.5 * d { 0.0 } else { h - depth })
+        }
+        Shape::Container { half_extents } => Vector3::from(*half_extents).add_scalar(depth),
+    }
 }
 
 /// Signed distance (m) from a body-frame point to the shape's surface, positive on the side
@@ -116,14 +173,16 @@ pub fn signed_distance(shape: &Shape, p: &Vector3<f64>) -> (f64, Vector3<f64>) {
 }
 
 impl Boundary {
-    /// Samples every body with spacing `d` and computes Akinci volumes `V_k = 1 / sum_l W_kl`.
-    pub fn new(configs: &[BodyConfig], d: f64, kernel: &CubicKernel) -> Self {
+    /// Samples every body with spacing `d`, its layer placed as `layer` says, and computes
+    /// Akinci volumes `V_k = 1 / sum_l W_kl`.
+    pub fn new(configs: &[BodyConfig], d: f64, kernel: &CubicKernel, layer: WallLayer) -> Self {
         let mut b = Boundary::default();
+        let depth = match layer {
+            WallLayer::Sunk => wall_depth(d, kernel),
+            WallLayer::Surface => 0.0,
+        };
         for (bi, c) in configs.iter().enumerate() {
-            let he = match &c.shape {
-                Shape::Box { half_extents } | Shape::Container { half_extents } => Vector3::from(*half_extents),
-            };
-            let pts = sample_box_surface(&he, d);
+            let pts = sample_box_surface(&layer_half_extents(&c.shape, depth, d), d);
             let start = b.local.len();
             // Volumes from the body's own particles: the sum is pose independent.
             let (lo, hi) = bounds(&pts, 0.0);
@@ -256,11 +315,85 @@ mod tests {
             rotation: [0.0; 3],
             kinematic: false,
         };
-        let b = Boundary::new(&[cfg], 0.02, &k);
+        let b = Boundary::new(&[cfg], 0.02, &k, WallLayer::Surface);
         // A particle in the middle of the top face: volume is a few d^3 (one layer stands in
         // for the missing half space).
         let mid = b.local.iter().position(|p| p.x.abs() < 1e-9 && p.y.abs() < 1e-9 && p.z > 0.0).unwrap();
         let v = b.volume[mid] / 0.02f64.powi(3);
         assert!(v > 1.0 && v < 3.0, "V/d^3 = {v}");
+    }
+
+    /// Density ratio at `x` of a water lattice of spacing `d` (given as its points) plus the
+    /// boundary particles of `b`.
+    fn density(x: &Vector3<f64>, water: &[Vector3<f64>], b: &Boundary, k: &CubicKernel, d: f64) -> f64 {
+        let fluid: f64 = water.iter().map(|y| k.w((x - y).norm())).sum::<f64>() * d * d * d;
+        let wall: f64 = b.x.iter().zip(&b.volume).map(|(y, v)| v * k.w((x - y).norm())).sum();
+        fluid + wall
+    }
+
+    #[test]
+    fn water_half_a_spacing_off_a_sunk_wall_has_the_bulk_density() {
+        let d = 0.02;
+        let k = CubicKernel::new(2.0 * d);
+        let depth = wall_depth(d, &k);
+        assert!((depth / d - 0.598).abs() < 1e-3, "depth {} d", depth / d);
+        // A floor whose sunk top layer is a lattice of spacing d aligned with the water's, its
+        // bottom layer out of the kernel's reach; the top surface at z = 0.
+        let he = [12.0 * d + depth, 12.0 * d + depth, 2.0 * d + depth];
+        let floor = |layer| {
+            let cfg = BodyConfig {
+                name: "floor".into(),
+                shape: Shape::Box { half_extents: he },
+                position: [0.0, 0.0, -he[2]],
+                rotation: [0.0; 3],
+                kinematic: false,
+            };
+            Boundary::new(&[cfg], d, &k, layer)
+        };
+        let mut water = Vec::new();
+        for i in -4..=4 {
+            for j in -4..=4 {
+                for l in 0..4 {
+                    water.push(Vector3::new(i as f64 * d, j as f64 * d, (0.5 + l as f64) * d));
+                }
+            }
+        }
+        let mut bulk = 0.0;
+        for i in -3..=3 {
+            for j in -3..=3 {
+                for l in -3..=3 {
+                    bulk += k.w(d * ((i * i + j * j + l * l) as f64).sqrt());
+                }
+            }
+        }
+        bulk *= d * d * d;
+        let x = Vector3::new(0.0, 0.0, 0.5 * d);
+        let sunk = density(&x, &water, &floor(WallLayer::Sunk), &k, d);
+        assert!((sunk - bulk).abs() < 1e-9, "sunk layer: {sunk} against the bulk {bulk}");
+        // The same water against a layer on the surface is compressed by more than a third.
+        let surface = density(&x, &water, &floor(WallLayer::Surface), &k, d);
+        assert!(surface > 1.33 * bulk, "surface layer: {surface}");
+    }
+
+    #[test]
+    fn thin_boxes_collapse_to_one_sheet() {
+        let d = 0.016;
+        let k = CubicKernel::new(2.0 * d);
+        let pad = BodyConfig {
+            name: "pad".into(),
+            shape: Shape::Box { half_extents: [0.01, 0.05, 0.05] },
+            position: [0.0; 3],
+            rotation: [0.0; 3],
+            kinematic: true,
+        };
+        let b = Boundary::new(&[pad], d, &k, WallLayer::Sunk);
+        assert!(b.local.iter().all(|p| p.x == 0.0), "a 20 mm pad at d = 16 mm is one sheet");
+        let n = b.local.len();
+        let mut unique = b.local.clone();
+        unique.sort_by(|a, c| {
+            a.iter().zip(c.iter()).map(|(x, y)| x.total_cmp(y)).find(|o| o.is_ne()).unwrap_or(std::cmp::Ordering::Equal)
+        });
+        unique.dedup();
+        assert_eq!(unique.len(), n, "no particle is sampled twice");
     }
 }

@@ -24,6 +24,36 @@ pub struct Contact {
     pub point: Vector3<f64>,
     /// Normal force on the particle (N), `>= 0`.
     pub normal_force: f64,
+    /// For a contact held as a stick inside the implicit solves: the tangential force (N) the
+    /// constraint exerted on the particle (already applied, and already in the body's load).
+    pub stick_force: Option<Vector3<f64>>,
+}
+
+impl Contact {
+    /// Adds a constraint impulse `j` (N s, on the particle) over a step `dt` (s): its normal
+    /// part to the normal force, its tangential part to the stick force of a held stick.
+    pub fn add_impulse(&mut self, j: &Vector3<f64>, dt: f64) {
+        let jn = self.normal.dot(j);
+        self.normal_force += jn / dt;
+        if let Some(f) = &mut self.stick_force {
+            *f += (j - self.normal * jn) / dt;
+        }
+    }
+}
+
+/// A contact that stuck in the previous step: the robot layer's anchor, which the implicit
+/// solves hold as a velocity constraint (paper Eq. 4 inside the coupled system).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Stick {
+    /// Dynamic particle index.
+    pub particle: u32,
+    /// Body index.
+    pub body: u16,
+    /// Anchor (stick point) in world coordinates at the start of the step (m).
+    pub anchor: Vector3<f64>,
+    /// Positional recovery gain beta in (0, 1]: the tangential velocity relative to the body
+    /// is `beta e / dt` for the anchor offset `e`.
+    pub gain: f64,
 }
 
 /// Fraction of the particle radius a fluid particle may sink into a body before projection.
@@ -82,6 +112,7 @@ pub fn resolve(
                             normal: n,
                             point,
                             normal_force: p.mass[a] * dvn / dt,
+                            stick_force: None,
                         });
                     }
                 }
@@ -100,7 +131,9 @@ const HOLD_SKIN: f64 = 0.05;
 /// deepest), with the normal velocity that lands them exactly one radius from the surface.
 ///
 /// `active` (by solid index) marks contacts that pushed in the previous step; they are kept
-/// while within the hold skin, and are released when they pulled.
+/// while within the hold skin, and are released when they pulled. A contact with a stick
+/// on its body (`sticks`, sorted by particle and body) also holds its tangential velocity:
+/// the body's plus the recovery `beta e / dt` toward the anchor.
 pub fn detect(
     p: &Particles,
     nbb: &NeighbourLists,
@@ -108,6 +141,7 @@ pub fn detect(
     radius: f64,
     dt: f64,
     active: &[bool],
+    sticks: &[Stick],
 ) -> Vec<(crate::nonpressure::VelocityConstraint, u16, Vector3<f64>)> {
     let nf = p.n_fluid;
     let found: Vec<Option<(crate::nonpressure::VelocityConstraint, u16, Vector3<f64>)>> = (nf..p.len())
@@ -132,7 +166,14 @@ pub fn detect(
                 let hold = active[a - nf] && dist < radius * (1.0 + HOLD_SKIN);
                 if gap < 0.0 || hold {
                     let target = vb.dot(&n) + (radius - dist) / dt;
-                    let con = crate::nonpressure::VelocityConstraint { particle: a as u32, normal: n, target };
+                    let tangential =
+                        sticks.binary_search_by_key(&(a as u32, bi as u16), |s| (s.particle, s.body)).ok().map(|k| {
+                            let s = &sticks[k];
+                            let t = vb + s.gain / dt * (s.anchor - point);
+                            t - n * n.dot(&t)
+                        });
+                    let con =
+                        crate::nonpressure::VelocityConstraint { particle: a as u32, normal: n, target, tangential };
                     if best.as_ref().is_none_or(|b| dist < b.0) {
                         best = Some((dist, con, bi as u16, point));
                     }
@@ -154,7 +195,10 @@ pub fn merge(a: Vec<Contact>, b: Vec<Contact>) -> Vec<Contact> {
     let mut out: Vec<Contact> = Vec::with_capacity(all.len());
     for c in all {
         match out.last_mut() {
-            Some(last) if last.particle == c.particle && last.body == c.body => last.normal_force += c.normal_force,
+            Some(last) if last.particle == c.particle && last.body == c.body => {
+                last.normal_force += c.normal_force;
+                last.stick_force = last.stick_force.or(c.stick_force);
+            }
             _ => out.push(c),
         }
     }

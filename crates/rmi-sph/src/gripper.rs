@@ -28,7 +28,10 @@ pub struct GripperConfig {
     pub pad_height_fraction: f64,
     /// Height of the pad centre as a fraction of the sponge's height.
     pub pad_center_fraction: f64,
-    /// Pad thickness along x (m).
+    /// Pad thickness along x (m). The default 5 cm keeps the boundary layer of a pad's back
+    /// face out of the kernel of water at its front face up to r = 1 cm (the layers are sunk
+    /// `boundary::wall_depth` below each face); a pad thinner than `2 wall_depth + d` is
+    /// sampled as one sheet through its middle.
     pub thickness: f64,
     /// Initial clearance between each pad face and the sponge face (m).
     pub gap: f64,
@@ -40,7 +43,7 @@ impl Default for GripperConfig {
             pad_width_fraction: 0.8,
             pad_height_fraction: 0.5,
             pad_center_fraction: 0.5,
-            thickness: 0.02,
+            thickness: 0.05,
             gap: 0.005,
         }
     }

@@ -82,9 +82,9 @@ pub struct Op<'a> {
     /// times the kernel's gradient factor g(|x|) (1/m^5), adhesion coefficient c_is]; the
     /// Laplacian one is viscosity (fluid-fluid) or drag.
     coef: Vec<Vec<[f64; 2]>>,
-    /// Contact constraints, and per particle the constrained normal (zero where free).
+    /// Contact constraints, and per particle the components they hold.
     constraints: &'a [VelocityConstraint],
-    normals: Vec<Vector3<f64>>,
+    filters: Vec<Filter>,
     /// Inverted preconditioner blocks.
     minv: Vec<Matrix3<f64>>,
     /// Coarse level of the two-level preconditioner.
@@ -141,7 +141,7 @@ impl<'a> Op<'a> {
             implicit_visc: s.viscosity_mode == ViscosityMode::Implicit && s.viscosity > 0.0,
             coef: Vec::new(),
             constraints,
-            normals: constraint_field(c.p.len(), constraints),
+            filters: constraint_field(c.p.len(), constraints),
             minv: Vec::new(),
             coarse: None,
         };
@@ -158,20 +158,13 @@ impl<'a> Op<'a> {
         op
     }
 
-    /// The constraint filter `S_a = I - n n^T` of particle `a` (identity where free).
-    #[inline(always)]
-    fn filter_matrix(&self, a: usize) -> Matrix3<f64> {
-        let n = self.normals[a];
-        Matrix3::identity() - n * n.transpose()
-    }
-
     /// Aggregates, the rows of `A Z` and the factored coarse matrix (None without aggregates).
     /// Pinned and constrained particles stay out of the aggregates: the coarse space then lies
     /// in the constraints' admissible set without a filter on its columns.
     fn coarse_level(&self) -> Option<TwoLevel> {
         let c = self.c;
         let nf = c.p.n_fluid;
-        let free = |a: usize| (a < nf || !c.rest.fixed[a - nf]) && self.normals[a] == Vector3::zeros();
+        let free = |a: usize| (a < nf || !c.rest.fixed[a - nf]) && self.filters[a] == Filter::Free;
         let agg = Aggregates::build(&c.p.x, self.s.coarse_cell, free);
         if agg.is_empty() {
             return None;
@@ -230,8 +223,8 @@ impl<'a> Op<'a> {
             }
         }
         row.add(agg[a], own);
-        if self.normals[a] != Vector3::zeros() {
-            let sa = self.filter_matrix(a);
+        if self.filters[a] != Filter::Free {
+            let sa = self.filters[a].matrix();
             row.map(|m| sa * m);
         }
     }
@@ -399,13 +392,13 @@ impl<'a> Op<'a> {
     fn apply_filtered_dot(&self, y: &[Vector3<f64>], out: &mut [Vector3<f64>], prl: &mut [Matrix3<f64>]) -> f64 {
         self.stress_pass(y, prl);
         let prl: &[Matrix3<f64>] = prl;
-        let normals = &self.normals;
+        let filters = &self.filters;
         let [yay] = crate::par::for_each_sum(
             out,
             #[inline(always)]
             |a, o| {
                 *o = self.row(a, y, prl);
-                filter_one(o, &normals[a]);
+                filters[a].apply(o);
                 [y[a].dot(o)]
             },
         );
@@ -457,7 +450,8 @@ fn dot(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
     par::sum(a.len(), |i| a[i].dot(&b[i]))
 }
 
-/// A velocity constraint on one particle: `n . v* = target` (a skeleton-body contact).
+/// A velocity constraint on one particle (a skeleton-body contact): `n . v* = target`, and
+/// for a sticking contact also the tangential velocity.
 #[derive(Clone, Copy, Debug)]
 pub struct VelocityConstraint {
     /// Dynamic particle index.
@@ -466,42 +460,91 @@ pub struct VelocityConstraint {
     pub normal: Vector3<f64>,
     /// Required normal velocity in m/s.
     pub target: f64,
+    /// Required tangential velocity (m/s, perpendicular to `normal`) of a contact that
+    /// sticks: the whole velocity is then held, and the constraint's impulse carries the
+    /// static friction force. `None` leaves the tangential motion free.
+    pub tangential: Option<Vector3<f64>>,
 }
 
-/// Per-particle constraint normal, zero where unconstrained.
-fn constraint_field(n: usize, cons: &[VelocityConstraint]) -> Vec<Vector3<f64>> {
-    let mut f = vec![Vector3::zeros(); n];
+impl VelocityConstraint {
+    /// The velocity this constraint prescribes, given the particle's current one `v` (m/s):
+    /// the normal component set to the target, the tangential one too where it sticks.
+    pub fn project(&self, v: &Vector3<f64>) -> Vector3<f64> {
+        match self.tangential {
+            Some(t) => self.normal * self.target + t,
+            None => v + self.normal * (self.target - self.normal.dot(v)),
+        }
+    }
+
+    /// The part of a row impulse `j` (N s) that the constraint takes: along the normal, or
+    /// all of it where it sticks (the free components of `j` are the solver's residual).
+    pub fn held(&self, j: &Vector3<f64>) -> Vector3<f64> {
+        match self.tangential {
+            Some(_) => *j,
+            None => self.normal * self.normal.dot(j),
+        }
+    }
+}
+
+/// The components of one particle's velocity that constraints hold.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Filter {
+    /// None.
+    Free,
+    /// The component along this unit normal.
+    Normal(Vector3<f64>),
+    /// All three.
+    Full,
+}
+
+impl Filter {
+    /// Removes the held components of `x` (the filter of Baraff and Witkin's modified PCG).
+    #[inline(always)]
+    fn apply(&self, x: &mut Vector3<f64>) {
+        match self {
+            Filter::Free => {}
+            Filter::Normal(n) => *x -= n * n.dot(x),
+            Filter::Full => *x = Vector3::zeros(),
+        }
+    }
+
+    /// The filter as a matrix: `I - n n^T`, zero, or the identity where free.
+    fn matrix(&self) -> Matrix3<f64> {
+        match self {
+            Filter::Free => Matrix3::identity(),
+            Filter::Normal(n) => Matrix3::identity() - n * n.transpose(),
+            Filter::Full => Matrix3::zeros(),
+        }
+    }
+}
+
+/// Per-particle filters of the constraints.
+fn constraint_field(n: usize, cons: &[VelocityConstraint]) -> Vec<Filter> {
+    let mut f = vec![Filter::Free; n];
     for c in cons {
-        f[c.particle as usize] = c.normal;
+        f[c.particle as usize] = if c.tangential.is_some() { Filter::Full } else { Filter::Normal(c.normal) };
     }
     f
 }
 
-/// Removes constrained normal components (the filter of Baraff and Witkin's modified PCG).
-fn filter(x: &mut [Vector3<f64>], normals: &[Vector3<f64>]) {
-    x.par_iter_mut().zip(normals.par_iter()).for_each(|(xi, n)| filter_one(xi, n));
+/// Removes the constrained components of every particle's vector.
+fn filter(x: &mut [Vector3<f64>], filters: &[Filter]) {
+    x.par_iter_mut().zip(filters.par_iter()).for_each(|(xi, f)| f.apply(xi));
 }
 
 /// The preconditioned residual of particle `a`: `filter(M^-1 r)`.
 #[inline(always)]
-fn precondition(minv: &[Matrix3<f64>], normals: &[Vector3<f64>], a: usize, r: &Vector3<f64>) -> Vector3<f64> {
+fn precondition(minv: &[Matrix3<f64>], filters: &[Filter], a: usize, r: &Vector3<f64>) -> Vector3<f64> {
     let mut z = minv[a] * r;
-    filter_one(&mut z, &normals[a]);
+    filters[a].apply(&mut z);
     z
-}
-
-/// [`filter`] of one vector against its normal `n` (zero where unconstrained).
-#[inline(always)]
-fn filter_one(x: &mut Vector3<f64>, n: &Vector3<f64>) {
-    if *n != Vector3::zeros() {
-        *x -= n * n.dot(x);
-    }
 }
 
 /// Solves for v* and writes it into `v`, honouring `constraints` exactly (filtered PCG).
 /// `kappa_prev` (kappa of the previous step) drives buoyancy; `gravity` (m/s^2) is part of
 /// the right-hand side so that constraints see it; `dv_prev` is the warm start, updated to
-/// v* - v on exit. Returns the statistics and the normal impulse (N s) of each constraint.
+/// v* - v on exit. Returns the statistics and the impulse (N s) each constraint exerted on
+/// its particle (along the normal; the whole vector for a sticking contact).
 #[allow(clippy::too_many_arguments)]
 pub fn solve(
     op: &Op,
@@ -510,7 +553,7 @@ pub fn solve(
     v: &mut [Vector3<f64>],
     dv_prev: &mut [Vector3<f64>],
     w: &mut CgWork,
-) -> (CgStats, Vec<f64>) {
+) -> (CgStats, Vec<Vector3<f64>>) {
     let (c, ef, s, constraints) = (op.c, op.ef, op.s, op.constraints);
     let n = c.p.len();
     let nf = c.p.n_fluid;
@@ -549,24 +592,31 @@ pub fn solve(
     let mut x: Vec<Vector3<f64>> = (0..n).map(|a| if s.warm_start { v[a] + dv_prev[a] } else { v[a] }).collect();
     for con in constraints {
         let xa = &mut x[con.particle as usize];
-        *xa += con.normal * (con.target - con.normal.dot(xa));
+        *xa = con.project(xa);
     }
     let stats = pcg(op, &mut x, w);
-    // Constraint impulses: what the rows still lack, A x - b, along the normals.
-    let impulses: Vec<f64> = if constraints.is_empty() {
-        Vec::new()
-    } else {
-        op.apply(&x, &mut w.ap, &mut w.prl);
-        constraints
-            .iter()
-            .map(|con| (w.ap[con.particle as usize] - w.b[con.particle as usize]).dot(&con.normal))
-            .collect()
-    };
+    let impulses = constraint_impulses(op, &x, w);
     v.par_iter_mut().zip(dv_prev.par_iter_mut()).zip(x.par_iter()).for_each(|((vi, dvi), xi)| {
         *dvi = xi - *vi;
         *vi = *xi;
     });
     (stats, impulses)
+}
+
+/// What the constrained rows still lack after a solve, `A x - w.b` (N s), in the components
+/// each constraint holds: the impulse it exerted on its particle.
+fn constraint_impulses(op: &Op, x: &[Vector3<f64>], w: &mut CgWork) -> Vec<Vector3<f64>> {
+    if op.constraints.is_empty() {
+        return Vec::new();
+    }
+    op.apply(x, &mut w.ap, &mut w.prl);
+    op.constraints
+        .iter()
+        .map(|con| {
+            let a = con.particle as usize;
+            con.held(&(w.ap[a] - w.b[a]))
+        })
+        .collect()
 }
 
 /// Preconditioned CG on `A x = w.b` from the guess in `x`, with the constrained rows' normal
@@ -580,14 +630,14 @@ pub fn solve(
 /// coarse pass with r . z. The sums have the chunking of `par::sum`, so the iterates do not
 /// depend on how the passes are fused.
 fn pcg(op: &Op, x: &mut [Vector3<f64>], w: &mut CgWork) -> CgStats {
-    let (normals, tolerance, max_iterations) = (&op.normals, op.s.tolerance, op.s.max_iterations);
+    let (filters, tolerance, max_iterations) = (&op.filters, op.s.tolerance, op.s.max_iterations);
     let minv = &op.minv;
     w.y.resize(x.len(), Vector3::zeros());
     op.apply(x, &mut w.ap, &mut w.prl);
     w.r.par_iter_mut().enumerate().for_each(|(a, r)| *r = w.b[a] - w.ap[a]);
-    filter(&mut w.r, normals);
+    filter(&mut w.r, filters);
     let mut bf = w.b.clone();
-    filter(&mut bf, normals);
+    filter(&mut bf, filters);
     let bnorm = dot(&bf, &bf).sqrt().max(1e-300);
     if let Some(tl) = &op.coarse {
         // x += Z c, r -= A Z c with c = E^-1 Z^T r (the rows of A Z are filtered already).
@@ -615,7 +665,7 @@ fn pcg(op: &Op, x: &mut [Vector3<f64>], w: &mut CgWork) -> CgStats {
         &mut w.y,
         #[inline(always)]
         |a, y| {
-            *y = precondition(minv, normals, a, &r[a]);
+            *y = precondition(minv, filters, a, &r[a]);
             [r[a].dot(y), r[a].dot(&r[a])]
         },
     );
@@ -635,7 +685,7 @@ fn pcg(op: &Op, x: &mut [Vector3<f64>], w: &mut CgWork) -> CgStats {
             #[inline(always)]
             |a, r, y| {
                 *r -= alpha * ap[a];
-                *y = precondition(minv, normals, a, r);
+                *y = precondition(minv, filters, a, r);
                 [r.dot(y), r.dot(r)]
             },
         );
@@ -657,8 +707,11 @@ fn pcg(op: &Op, x: &mut [Vector3<f64>], w: &mut CgWork) -> CgStats {
 /// pressure solve's: solves `A x = m dv` with the system of [`solve`] (viscosity, drag,
 /// adhesion, linearised elasticity, the same contact constraints held; `w` sized by
 /// [`solve`]), and writes x into `dv`. `correction_prev` holds the previous response's
-/// x - dv, the warm start (m/s), and is updated on exit. Because `A` is linear, the step's velocity v* + x equals the implicit solve
-/// with the pressure force on its right-hand side.
+/// x - dv, the warm start (m/s), and is updated on exit (`None`: no warm start). Because
+/// `A` is linear, the step's velocity v* + x equals the implicit solve with the pressure
+/// force on its right-hand side. Returns the statistics and, per constraint, the impulse
+/// (N s) it exerted to hold its components against the increment; what the increment
+/// pushes into a body must reach that body's load.
 ///
 /// The pressure solve moves water as if it were free; through a sponge's pores the drag
 /// takes most of that impulse within the same step and the skeleton's elasticity carries
@@ -667,35 +720,44 @@ fn pcg(op: &Op, x: &mut [Vector3<f64>], w: &mut CgWork) -> CgStats {
 pub fn pressure_response(
     op: &Op,
     dv: &mut [Vector3<f64>],
-    correction_prev: &mut [Vector3<f64>],
+    correction_prev: Option<&mut [Vector3<f64>]>,
     w: &mut CgWork,
-) -> CgStats {
+) -> (CgStats, Vec<Vector3<f64>>) {
     let c = op.c;
     let nf = c.p.n_fluid;
     // A fixed skeleton does not move: zero there (rhs and guess) eliminates its rows, so the
     // water sees it as an immovable obstacle and the operator stays symmetric on the rest.
-    // A contact already meets its target velocity: its normal component stays put.
+    for a in nf..c.p.len() {
+        if c.rest.fixed[a - nf] {
+            dv[a] = Vector3::zeros();
+        }
+    }
+    // A contact already meets its target velocity: its held components stay put (the guess is
+    // filtered; the right-hand side is not, so that the constraint's impulse includes the
+    // part of the increment it cancels on its own particle).
+    w.b.par_iter_mut().enumerate().for_each(|(a, b)| *b = c.p.mass[a] * dv[a]);
     let hold = |x: &mut [Vector3<f64>]| {
         for a in nf..c.p.len() {
             if c.rest.fixed[a - nf] {
                 x[a] = Vector3::zeros();
             }
         }
-        filter(x, &op.normals);
+        filter(x, &op.filters);
     };
     hold(dv);
-    w.b.par_iter_mut().enumerate().for_each(|(a, b)| *b = c.p.mass[a] * dv[a]);
     // Warm start: the drag takes back about the same share of the pressure impulse from step
     // to step, so the last step's correction x - dv is a close guess; water away from the
     // skeleton (rows `m x = m dv`) has none.
     let dv_in: Vec<Vector3<f64>> = dv.to_vec();
-    if op.s.warm_start {
-        dv.par_iter_mut().zip(correction_prev.par_iter()).for_each(|(x, k)| *x += k);
+    if let (true, Some(prev)) = (op.s.warm_start, correction_prev.as_deref()) {
+        dv.par_iter_mut().zip(prev.par_iter()).for_each(|(x, k)| *x += k);
         hold(dv);
     }
     let stats = pcg(op, dv, w);
-    correction_prev.par_iter_mut().zip(dv.par_iter().zip(dv_in.par_iter())).for_each(|(k, (x, d))| *k = x - d);
-    stats
+    if let Some(prev) = correction_prev {
+        prev.par_iter_mut().zip(dv.par_iter().zip(dv_in.par_iter())).for_each(|(k, (x, d))| *k = x - d);
+    }
+    (stats, constraint_impulses(op, dv, w))
 }
 
 /// Explicit accelerations outside the implicit solve: SPlisHSPlasH "standard" fluid viscosity
@@ -842,7 +904,7 @@ mod tests {
         sim.with_operator(|op| {
             let tl = op.coarse.as_ref().expect("two-level preconditioner configured");
             let n = op.c.p.len();
-            assert!(op.normals.iter().any(|n| *n != Vector3::zeros()), "the scene must hold contacts");
+            assert!(op.filters.iter().any(|f| *f != Filter::Free), "the scene must hold contacts");
             let agg = tl.aggregates();
             assert!(agg.len() > 8);
             let mut prl = vec![Matrix3::zeros(); op.c.p.n_solid()];
@@ -860,7 +922,7 @@ mod tests {
                         y[a as usize] = Vector3::ith(k, 1.0);
                     }
                     op.apply(&y, &mut out, &mut prl);
-                    filter(&mut out, &op.normals);
+                    filter(&mut out, &op.filters);
                     for a in 0..n {
                         let err = (out[a] - col[a].column(k)).abs().max() / scale;
                         worst = worst.max(err);

@@ -49,12 +49,14 @@ pub fn sponge(size: [f64; 3], porosity: f64, radius: f64) -> SimConfig {
         fixed: false,
     });
     let d = 2.0 * radius;
-    // Floor surface at z = -r/2... the top face sits at z = -d/2 so the lowest skeleton
-    // particles (centres at d/2) start one spacing above it, resting on the contact skin.
+    // The floor's top face is the block's bottom face: the lowest skeleton particles (centres
+    // at d/2) start at their contact distance and the pore water below them at its rest
+    // distance from the sunk wall layer. Four spacings thick, so that the layers of its top
+    // and bottom faces lie out of each other's kernel.
     cfg.scene.bodies.push(BodyConfig {
         name: "floor".into(),
-        shape: Shape::Box { half_extents: [0.3, 0.3, d] },
-        position: [0.0, 0.0, -1.5 * d],
+        shape: Shape::Box { half_extents: [0.3, 0.3, 2.0 * d] },
+        position: [0.0, 0.0, -2.0 * d],
         rotation: [0.0; 3],
         kinematic: false,
     });

@@ -2,7 +2,7 @@
 
 use crate::boundary::{BodyState, Boundary};
 use crate::config::SimConfig;
-use crate::contact::{self, Contact};
+use crate::contact::{self, Contact, Stick};
 use crate::ctx::Ctx;
 use crate::density::{self, DensityFields};
 use crate::elasticity::{self, ElasticFields};
@@ -30,6 +30,10 @@ pub struct StepStats {
     /// Implicit response to the pressure impulse (zero iterations when
     /// `pressure.drag_coupled` is off or there is no skeleton).
     pub pressure_response: CgStats,
+    /// Implicit response to impulses the step's hook applied through
+    /// [`ContactStage::respond`] (the robot layer's kinetic friction); zero iterations when
+    /// there were none.
+    pub hook_response: CgStats,
     /// Dynamic-dynamic neighbour pairs stored.
     pub neighbour_pairs: usize,
     /// Particle-body contacts resolved.
@@ -38,6 +42,11 @@ pub struct StepStats {
     /// pressure response, rest.
     pub seconds: [f64; 6],
 }
+
+/// Factor by which [`Simulation::soak`] raises every skeleton's permeability: the pore water
+/// settles within a fifth of a second instead of seconds (Darcy flow, slowed by the drag in
+/// proportion to it).
+pub const SOAK_PERMEABILITY_FACTOR: f64 = 1000.0;
 
 /// Largest thread pool a simulation accepts.
 pub const MAX_THREADS: usize = 1024;
@@ -87,8 +96,9 @@ pub struct Simulation {
     contacts: Vec<Contact>,
     /// Skeleton particles whose contact pushed in the last step (contact hysteresis).
     pub(crate) contact_active: Vec<bool>,
-    /// Fluid particles inside a sponge's deformed volume after the last step (retention.rs).
-    retained: Vec<bool>,
+    /// Part of each fluid particle inside a sponge's deformed volume after the last step
+    /// (retention.rs).
+    retained: Vec<f64>,
 }
 
 /// The implicit solve's settings from the config.
@@ -116,8 +126,16 @@ pub fn default_threads() -> usize {
 }
 
 impl Simulation {
-    /// Builds the scene of `cfg` (validated first) with `threads` worker threads (None: default).
+    /// Builds the scene of `cfg` (validated first) with `threads` worker threads (None:
+    /// default) and soaks its pore water for `cfg.scene.soak_time`.
     pub fn new(cfg: SimConfig, threads: Option<usize>) -> Result<Self> {
+        let mut sim = Self::build(cfg, threads)?;
+        sim.soak(sim.cfg.scene.soak_time)?;
+        Ok(sim)
+    }
+
+    /// The scene of `cfg` as sampled, without the soak (for states restored over it).
+    pub(crate) fn build(cfg: SimConfig, threads: Option<usize>) -> Result<Self> {
         cfg.validate()?;
         let threads = check_threads(threads.unwrap_or_else(default_threads))?;
         let pool = rayon::ThreadPoolBuilder::new()
@@ -128,8 +146,9 @@ impl Simulation {
         let pool = std::sync::Arc::new(pool);
         // Every parallel pass runs in the simulation's own pool, never in rayon's global one:
         // a process forked after the global pool started has no workers for it.
-        let (built, bnd) =
-            pool.install(|| (scene::build(&cfg, &kernel), Boundary::new(&cfg.scene.bodies, cfg.spacing(), &kernel)));
+        let (built, bnd) = pool.install(|| {
+            (scene::build(&cfg, &kernel), Boundary::new(&cfg.scene.bodies, cfg.spacing(), &kernel, cfg.wall_layer))
+        });
         let n = built.particles.len();
         let mut sim = Simulation {
             kernel,
@@ -166,6 +185,56 @@ impl Simulation {
         sim.rest.hg_k =
             sim.pool.install(|| elasticity::hourglass_constants(&sim.rest, &sim.p, &sim.objects, &sim.kernel));
         Ok(sim)
+    }
+
+    /// Lets the pore water settle into the skeleton for `duration` (s) before the run starts:
+    /// the skeleton pinned at rest, no gravity, bodies still, permeability raised by
+    /// [`SOAK_PERMEABILITY_FACTOR`]. Then time, step, velocities and solver memory start from
+    /// zero.
+    ///
+    /// Pore water sampled on a lattice is thinner than the rest density in the kernel's
+    /// reach of a sponge's faces (truncated sums: about 9 % of the water's mass short at
+    /// r = 8 mm, 3 % at 2.5 mm), and the pressure only resists compression. Adhesion pulls it
+    /// in over seconds at the sponges' permeability, so that a squeeze starting from the
+    /// lattice fills that deficit instead of expelling water. Soaked, the faces' pore water
+    /// starts at the rest density the pressure holds.
+    fn soak(&mut self, duration: f64) -> Result<()> {
+        let steps = (duration / self.cfg.dt).round() as u64;
+        if steps == 0 || self.p.n_fluid == 0 || self.p.n_solid() == 0 {
+            return Ok(());
+        }
+        let gravity = std::mem::replace(&mut self.cfg.gravity, [0.0; 3]);
+        let fixed = std::mem::replace(&mut self.rest.fixed, vec![true; self.p.n_solid()]);
+        let velocities: Vec<_> = self.bnd.bodies.iter().map(|b| (b.state.velocity, b.state.angular_velocity)).collect();
+        for b in &mut self.bnd.bodies {
+            b.state.velocity = Vector3::zeros();
+            b.state.angular_velocity = Vector3::zeros();
+        }
+        let betas: Vec<f64> = self.objects.iter().map(|o| o.drag_beta).collect();
+        for o in &mut self.objects {
+            o.drag_beta /= SOAK_PERMEABILITY_FACTOR;
+        }
+        let run = self.run(steps);
+        for (o, beta) in self.objects.iter_mut().zip(betas) {
+            o.drag_beta = beta;
+        }
+        for (b, (v, w)) in self.bnd.bodies.iter_mut().zip(velocities) {
+            b.state.velocity = v;
+            b.state.angular_velocity = w;
+        }
+        self.rest.fixed = fixed;
+        self.cfg.gravity = gravity;
+        run?;
+        self.p.v.iter_mut().for_each(|v| *v = Vector3::zeros());
+        for buf in [&mut self.dv_prev, &mut self.response_prev] {
+            buf.iter_mut().for_each(|v| *v = Vector3::zeros());
+        }
+        self.kappa_dt2.iter_mut().for_each(|k| *k = 0.0);
+        self.contact_active.iter_mut().for_each(|a| *a = false);
+        self.time = 0.0;
+        self.step = 0;
+        self.update_fields();
+        Ok(())
     }
 
     fn refresh_rho0(&mut self) {
@@ -304,8 +373,21 @@ impl Simulation {
     where
         F: FnOnce(&mut ContactStage<'_>) + Send,
     {
+        self.step_with_sticks(&[], hook)
+    }
+
+    /// [`Simulation::step_with`] with contacts that stick held inside the implicit solves:
+    /// a skeleton particle in contact with a body it has a stick on (`sticks`, sorted by
+    /// particle and body) keeps its whole velocity at the stick target in the non-pressure
+    /// solve and the pressure response, so that the drag couples its pore water to a held
+    /// particle; the static friction force is the constraint's tangential impulse
+    /// ([`Contact::stick_force`]), already in the body's load.
+    pub fn step_with_sticks<F>(&mut self, sticks: &[Stick], hook: F) -> Result<&StepStats>
+    where
+        F: FnOnce(&mut ContactStage<'_>) + Send,
+    {
         let pool = self.pool.clone();
-        pool.install(|| self.step_inner(hook))?;
+        pool.install(|| self.step_inner(sticks, hook))?;
         Ok(&self.stats)
     }
 
@@ -360,8 +442,8 @@ impl Simulation {
     fn update_retained(&mut self) {
         let pool = self.pool.clone();
         self.retained = pool.install(|| {
-            let margin = self.cfg.particle_radius;
-            retention::inside(&self.p, &self.nb, &self.rest, &self.solid, &self.objects, &self.kernel, margin)
+            let d = self.cfg.spacing();
+            retention::retained_parts(&self.p, &self.nb, &self.rest, &self.solid, &self.objects, &self.kernel, d)
         });
     }
 
@@ -391,7 +473,7 @@ impl Simulation {
         elasticity::prepare(&ctx, &self.solid.rotation, &self.dens.saturation, &mut self.ef);
         let nps = nonpressure_settings(cfg);
         let detected =
-            contact::detect(&self.p, &self.nbb, &self.bnd, cfg.particle_radius, cfg.dt, &self.contact_active);
+            contact::detect(&self.p, &self.nbb, &self.bnd, cfg.particle_radius, cfg.dt, &self.contact_active, &[]);
         let cons: Vec<_> = detected.iter().map(|d| d.0).collect();
         let op = nonpressure::Op::new(&ctx, &self.dens, &self.ef, &nps, &cons);
         f(&op)
@@ -429,7 +511,7 @@ impl Simulation {
             .map_or(Vector3::zeros(), |o| o.range.clone().map(|a| f[a - nf]).fold(Vector3::zeros(), |s, x| s + x))
     }
 
-    fn step_inner<F>(&mut self, hook: F) -> Result<()>
+    fn step_inner<F>(&mut self, sticks: &[Stick], hook: F) -> Result<()>
     where
         F: FnOnce(&mut ContactStage<'_>),
     {
@@ -456,7 +538,8 @@ impl Simulation {
         let g = Vector3::from(cfg.gravity);
         // Skeleton-body contacts enter the implicit solve as velocity constraints, so that
         // the contact force is the constraint reaction of the stiff elastic system.
-        let detected = contact::detect(&self.p, &self.nbb, &self.bnd, cfg.particle_radius, dt, &self.contact_active);
+        let detected =
+            contact::detect(&self.p, &self.nbb, &self.bnd, cfg.particle_radius, dt, &self.contact_active, sticks);
         let implicit = nonpressure::needed(&ctx, &nps);
         let mut contacts: Vec<Contact> = Vec::with_capacity(detected.len());
         let cons: Vec<_> = detected.iter().map(|d| d.0).collect();
@@ -465,13 +548,16 @@ impl Simulation {
             let kappa_prev: Vec<f64> = self.kappa_dt2.iter().map(|k| k / (dt * dt)).collect();
             let (cg, impulses) = nonpressure::solve(op, &kappa_prev, &g, &mut v, &mut self.dv_prev, &mut self.cgwork);
             for ((con, body, point), j) in detected.iter().zip(impulses) {
-                contacts.push(Contact {
+                let mut c = Contact {
                     particle: con.particle,
                     body: *body,
                     normal: con.normal,
                     point: *point,
-                    normal_force: j / dt,
-                });
+                    normal_force: 0.0,
+                    stick_force: con.tangential.map(|_| Vector3::zeros()),
+                };
+                c.add_impulse(&j, dt);
+                contacts.push(c);
             }
             cg
         } else {
@@ -516,8 +602,13 @@ impl Simulation {
         let pressure_response = match (v_pre, &system) {
             (Some(v_pre), Some(op)) => {
                 let mut dv: Vec<Vector3<f64>> = v.iter().zip(&v_pre).map(|(a, b)| a - b).collect();
-                let st = nonpressure::pressure_response(op, &mut dv, &mut self.response_prev, &mut self.cgwork);
+                let (st, impulses) =
+                    nonpressure::pressure_response(op, &mut dv, Some(&mut self.response_prev), &mut self.cgwork);
                 v.iter_mut().zip(v_pre.iter().zip(&dv)).for_each(|(vi, (p, d))| *vi = p + d);
+                // What the constraints took of the pressure impulse reaches the bodies.
+                for (c, j) in contacts.iter_mut().zip(&impulses) {
+                    c.add_impulse(j, dt);
+                }
                 st
             }
             _ => CgStats::default(),
@@ -542,7 +633,7 @@ impl Simulation {
         }
         let mut forces: Vec<(Vector3<f64>, Vector3<f64>)> = reactions;
         for c in &contacts {
-            let f = -c.normal * c.normal_force;
+            let f = -(c.normal * c.normal_force + c.stick_force.unwrap_or_default());
             let bi = c.body as usize;
             forces[bi].0 += f;
             forces[bi].1 += (c.point - self.bnd.bodies[bi].state.position).cross(&f);
@@ -555,8 +646,12 @@ impl Simulation {
             body_forces: &mut forces,
             dt,
             rest_fixed: &self.rest.fixed,
+            system: system.as_ref().map(|op| (op, &mut self.cgwork)),
+            constraints: &detected,
+            response: CgStats::default(),
         };
         hook(&mut stage);
+        let hook_response = stage.response;
         // Divergence guard before anything is committed.
         let vmax = crate::par::max(v.len(), |a| v[a].norm());
         if !vmax.is_finite() || vmax > cfg.max_velocity {
@@ -584,6 +679,7 @@ impl Simulation {
             pressure: pstats,
             cg,
             pressure_response,
+            hook_response,
             neighbour_pairs: self.nb.pairs(),
             contacts: contacts.len(),
             seconds: [
@@ -636,7 +732,7 @@ impl Simulation {
     pub fn restore(&mut self, s: Snapshot) -> Result<()> {
         s.check()?;
         let threads = self.threads;
-        let mut fresh = Simulation::new(s.config.clone(), Some(threads))?;
+        let mut fresh = Simulation::build(s.config.clone(), Some(threads))?;
         if fresh.bnd.bodies.len() != s.bodies.len() {
             return Err(RmiError::State(format!(
                 "snapshot has {} bodies, its config {}",
@@ -679,7 +775,7 @@ impl Simulation {
     /// Loads a snapshot file into a new simulation with `threads` workers.
     pub fn load(path: &std::path::Path, threads: Option<usize>) -> Result<Self> {
         let s = Snapshot::load(path)?;
-        let mut sim = Simulation::new(s.config.clone(), threads)?;
+        let mut sim = Simulation::build(s.config.clone(), threads)?;
         sim.restore(s)?;
         Ok(sim)
     }
@@ -701,12 +797,68 @@ pub struct ContactStage<'a> {
     pub dt: f64,
     /// Pinned skeleton particles (by solid index).
     pub rest_fixed: &'a [bool],
+    /// The step's implicit system (None when the step had none: no skeleton, explicit
+    /// viscosity), for [`ContactStage::respond`].
+    system: Option<(&'a nonpressure::Op<'a>, &'a mut CgWork)>,
+    /// The constraints it held, with their bodies and contact points.
+    constraints: &'a [(nonpressure::VelocityConstraint, u16, Vector3<f64>)],
+    response: CgStats,
 }
 
-impl ContactStage<'_> {
+impl<'a> ContactStage<'a> {
+    /// A stage without an implicit system (friction tests on hand-made contacts).
+    #[cfg(test)]
+    pub(crate) fn plain(
+        particles: &'a Particles,
+        v: &'a mut [Vector3<f64>],
+        contacts: &'a [Contact],
+        boundary: &'a Boundary,
+        body_forces: &'a mut [(Vector3<f64>, Vector3<f64>)],
+        dt: f64,
+        rest_fixed: &'a [bool],
+    ) -> Self {
+        ContactStage {
+            particles,
+            v,
+            contacts,
+            boundary,
+            body_forces,
+            dt,
+            rest_fixed,
+            system: None,
+            constraints: &[],
+            response: CgStats::default(),
+        }
+    }
+
     /// The state of body `i`.
     pub fn body(&self, i: usize) -> &BodyState {
         &self.boundary.bodies[i].state
+    }
+
+    /// Adds velocity increments `dv` (m/s, one per dynamic particle; e.g. a friction force's
+    /// `dt f / m` on its particle) through the step's implicit system: the increment becomes
+    /// the right-hand side `m dv` of the coupled operator (drag, adhesion, viscosity,
+    /// elasticity, the step's contact constraints held), so that a force on a skeleton
+    /// particle moves its pore water with it as the drag does within a step, instead of
+    /// sliding the skeleton under its water. Adds the result to `v` and the constraints'
+    /// reactions to the body loads. Without an implicit system `dv` is added as it is. The
+    /// caller adds the reactions of its own forces to the body loads, as with `v`.
+    pub fn respond(&mut self, mut dv: Vec<Vector3<f64>>) {
+        let Some((op, work)) = &mut self.system else {
+            self.v.iter_mut().zip(&dv).for_each(|(v, d)| *v += d);
+            return;
+        };
+        let (stats, impulses) = nonpressure::pressure_response(op, &mut dv, None, work);
+        self.response.iterations += stats.iterations;
+        self.response.residual = stats.residual;
+        self.v.iter_mut().zip(&dv).for_each(|(v, d)| *v += d);
+        for ((_, body, point), j) in self.constraints.iter().zip(&impulses) {
+            let bi = *body as usize;
+            let f = -j / self.dt;
+            self.body_forces[bi].0 += f;
+            self.body_forces[bi].1 += (point - self.boundary.bodies[bi].state.position).cross(&f);
+        }
     }
 }
 
@@ -739,10 +891,10 @@ impl Simulation {
         &self.dens.skeleton_cover[..nf.min(self.dens.skeleton_cover.len())]
     }
 
-    /// Whether each fluid particle lies inside a sponge's deformed volume (see
-    /// [`crate::retention`]), at the positions after the last step (or of
+    /// The part (in [0, 1]) of each fluid particle that lies inside a sponge's deformed
+    /// volume (see [`crate::retention`]), at the positions after the last step (or of
     /// [`Simulation::update_fields`]); empty before either.
-    pub fn retained(&self) -> &[bool] {
+    pub fn retained(&self) -> &[f64] {
         &self.retained
     }
 

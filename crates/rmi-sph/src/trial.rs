@@ -5,7 +5,7 @@
 //! external [`Action`]); [`run_trial`] runs the scripted trial to the end and returns the
 //! recorded trajectory and its outcome.
 
-use crate::config::{check_range, PorousMaterial, Preconditioner, PressureConfig, SimConfig};
+use crate::config::{check_range, PorousMaterial, Preconditioner, PressureConfig, SimConfig, WallLayer};
 use crate::controller::{Action, ControlInput, Controller, ControllerParams, Failure, Phase, Transition};
 use crate::friction::{ContactMemory, FrictionParams};
 use crate::gate::{Gate, GateInput, GateParams};
@@ -38,6 +38,10 @@ pub struct TrialConfig {
     pub jitter: f64,
     /// Start with water in the pores.
     pub saturated: bool,
+    /// Time (s) the pore water settles into the pinned skeleton before the trial's clock
+    /// starts (`SceneConfig::soak_time`): the faces' pore water then starts at the rest
+    /// density instead of the lattice's thinner sum, so that closing pores expels water.
+    pub soak_time: f64,
     /// Skeleton material (its porosity is replaced by `porosity`).
     pub material: PorousMaterial,
     /// Pads.
@@ -50,6 +54,8 @@ pub struct TrialConfig {
     pub gate: GateParams,
     /// Pressure solve (tolerance, iterations, drag coupling of the pressure impulse).
     pub pressure: PressureConfig,
+    /// Placement of the floor's and pads' boundary particles.
+    pub wall_layer: WallLayer,
     /// Simulator steps per recorded row of [`run_trial`].
     pub record_every: u32,
 }
@@ -66,12 +72,14 @@ impl Default for TrialConfig {
             seed: 0,
             jitter: 0.05,
             saturated: true,
+            soak_time: 0.25,
             material: PorousMaterial::default(),
             gripper: GripperConfig::default(),
             friction: FrictionParams::default(),
             controller: ControllerParams::default(),
             gate: GateParams::default(),
             pressure: PressureConfig::default(),
+            wall_layer: WallLayer::Sunk,
             record_every: 5,
         }
     }
@@ -100,6 +108,7 @@ impl TrialConfig {
         check_range("hold_force", self.hold_force, 0.0, crate::controller::FORCE_LIMIT, "N")?;
         check_range("squeeze_force", self.squeeze_force, 0.0, crate::controller::FORCE_LIMIT, "N")?;
         check_range("jitter", self.jitter, 0.0, 0.25, "(fraction of the spacing)")?;
+        check_range("soak_time", self.soak_time, 0.0, 10.0, "s")?;
         if self.record_every == 0 || self.record_every > 1_000_000 {
             return Err(RmiError::config("record_every", self.record_every, "an integer in [1, 1000000]"));
         }
@@ -127,7 +136,9 @@ impl TrialConfig {
         cfg.dt = self.dt;
         cfg.scene.seed = self.seed;
         cfg.scene.jitter = self.jitter;
+        cfg.scene.soak_time = self.soak_time;
         cfg.pressure = self.pressure.clone();
+        cfg.wall_layer = self.wall_layer;
         // Over a gripped trial the two-level CG's set-up costs more than it saves (settling and
         // ramping gain 7-13 %, the lifted phases lose 15-20 %; benches/RESULTS.md), so trials
         // keep block Jacobi whatever the resolution.
@@ -218,7 +229,12 @@ impl Trial {
     /// Builds the scene and the robot layer; `threads = None` uses the default count.
     pub fn new(cfg: TrialConfig, threads: Option<usize>) -> Result<Self> {
         cfg.validate()?;
-        let mut sim = Simulation::new(cfg.sim_config(), threads)?;
+        let sim = Simulation::new(cfg.sim_config(), threads)?;
+        Self::around(cfg, sim)
+    }
+
+    /// The robot layer around a built scene.
+    fn around(cfg: TrialConfig, mut sim: Simulation) -> Result<Self> {
         sim.update_fields();
         let gripper = Gripper::find(sim.boundary(), cfg.gripper.thickness)
             .ok_or_else(|| RmiError::State("the scene has no gripper pads".into()))?;
@@ -300,8 +316,8 @@ impl Trial {
         Ok(())
     }
 
-    /// Retained liquid: mass of the fluid inside the sponge's deformed volume (kg), and the
-    /// total liquid mass.
+    /// Retained liquid: mass of the fluid inside the sponge's deformed volume (kg; each
+    /// particle with the part of it inside, `retention.rs`), and the total liquid mass.
     fn retained(&self) -> (f64, f64) {
         let p = self.sim.particles();
         let inside = self.sim.retained();
@@ -309,9 +325,7 @@ impl Trial {
         let mut kept = 0.0;
         for a in 0..p.n_fluid {
             total += p.mass[a];
-            if inside.get(a).copied().unwrap_or(false) {
-                kept += p.mass[a];
-            }
+            kept += p.mass[a] * inside.get(a).copied().unwrap_or(0.0);
         }
         (kept, total)
     }
@@ -372,9 +386,11 @@ impl Trial {
         let mut memory = self.layer.memory.clone();
         let mut records = Vec::new();
         let (bodies, fp) = (&self.friction_bodies, &self.cfg.friction);
+        let sticks =
+            if fp.coupled { memory.sticks(self.sim.particles().n_fluid, self.sim.boundary(), fp) } else { Vec::new() };
         let out = &mut records;
         let mem = &mut memory;
-        if let Err(e) = self.sim.step_with(move |stage| *out = mem.apply(stage, bodies, fp)) {
+        if let Err(e) = self.sim.step_with_sticks(&sticks, move |stage| *out = mem.apply(stage, bodies, fp)) {
             self.layer.controller = saved_ctrl;
             return Err(e);
         }
@@ -478,7 +494,8 @@ impl Trial {
             .map_err(|e| RmiError::State(format!("corrupt trial state: {e}")))?;
         let cfg = TrialConfig::from_json(&json)?;
         let snap = Snapshot::from_bytes(&snap)?;
-        let mut t = Trial::new(cfg, threads)?;
+        // The state replaces the scene: build it without the soak.
+        let mut t = Trial::around(cfg.clone(), Simulation::build(cfg.sim_config(), threads)?)?;
         if layer.memory.particles() != snap.particles.n_solid() {
             return Err(RmiError::State("trial state: contact memory does not match the particles".into()));
         }
