@@ -341,7 +341,8 @@ impl PySimulation {
         d.set_item("porosity", PyArray1::from_vec(py, field(&f.porosity)))?;
         if kind == "fluid" {
             d.set_item("skeleton_cover", PyArray1::from_vec(py, field(&f.skeleton_cover)))?;
-            let inside: Vec<f64> = (0..nf).map(|a| sim.retained().get(a).copied().unwrap_or(0.0)).collect();
+            let mut inside = sim.retained();
+            inside.resize(nf, 0.0);
             d.set_item("retained", PyArray1::from_vec(py, inside))?;
         } else {
             d.set_item("saturation", PyArray1::from_vec(py, field(&f.saturation)))?;

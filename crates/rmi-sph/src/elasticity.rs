@@ -39,6 +39,19 @@ pub fn rotations(c: &Ctx, rot: &mut [UnitQuaternion<f64>]) {
     });
 }
 
+/// Volume ratio `J = det F` of skeleton particle `s` (solid index) at positions `x` (by
+/// dynamic index; `nf` fluid particles first), with `F = sum_r V_r0 (x_r - x_s) (x) L_s grad
+/// W0_sr` the corrected deformation gradient: exact for affine motion, at faces too, where
+/// kernel sums are truncated.
+pub fn volume_ratio(rest: &crate::particles::SolidRest, x: &[Vector3<f64>], nf: usize, s: usize) -> f64 {
+    let mut f = Matrix3::zeros();
+    for e in rest.start[s] as usize..rest.start[s + 1] as usize {
+        let r = rest.nbr[e] as usize;
+        f += rest.v0[r - nf] * (x[r] - x[nf + s]) * (rest.l[s] * rest.grad0[e]).transpose();
+    }
+    f.determinant()
+}
+
 /// Iterative rotation extraction from a deformation matrix, starting at `q`.
 pub fn extract_rotation(a: &Matrix3<f64>, mut q: UnitQuaternion<f64>, iterations: usize) -> UnitQuaternion<f64> {
     for _ in 0..iterations {

@@ -1,12 +1,12 @@
 //! The interaction state y_t (paper Eq. 7) and the extras recorded beside it.
 //!
 //! Definitions (SI units):
-//! - *Retained* liquid: fluid particles inside the sponge's deformed volume, found by
-//!   mapping each one back to the skeleton's rest frame (see [`crate::retention`]). Water
-//!   pressed out onto the surface or dripping off counts as expelled. `M_L` is their mass,
-//!   `M_expelled` the rest; both sum to the initial water mass exactly.
-//! - Sponge volume: each skeleton particle occupies `d^3` at rest and `d^3 (1 - phi) /
-//!   (1 - phi_s)` at its current local porosity `phi_s`; `V_sponge` is the sum and `V_pore`
+//! - *Retained* liquid `M_L`: the water the sponge's pores hold, `rho_f V_pore S`
+//!   ([`crate::Simulation::pore_water`]), at most the water there is. Water pressed out onto
+//!   the surface or dripping off counts as expelled: `M_expelled` is the rest of the water,
+//!   so that both sum to the total water mass exactly.
+//! - Sponge volume: each skeleton particle occupies `d^3` at rest and `d^3 J` deformed, with
+//!   `J = det F` of its corrected deformation gradient; `V_sponge` is the sum and `V_pore`
 //!   subtracts the (incompressible) solid volume. `S` is the pore-volume-weighted mean of
 //!   the skeleton's local saturation.
 //! - Loads: `F_L`, `F_R` are the pads' normal loads (see [`crate::gripper::Gripper::loads`]);

@@ -96,9 +96,6 @@ pub struct Simulation {
     contacts: Vec<Contact>,
     /// Skeleton particles whose contact pushed in the last step (contact hysteresis).
     pub(crate) contact_active: Vec<bool>,
-    /// Part of each fluid particle inside a sponge's deformed volume after the last step
-    /// (retention.rs).
-    retained: Vec<f64>,
 }
 
 /// The implicit solve's settings from the config.
@@ -177,7 +174,6 @@ impl Simulation {
             stats: StepStats::default(),
             contacts: Vec::new(),
             contact_active: Vec::new(),
-            retained: Vec::new(),
             cfg,
         };
         sim.refresh_rho0();
@@ -434,17 +430,6 @@ impl Simulation {
                 apply(f, &perm);
             }
         }
-        if self.retained.len() >= perm.len() {
-            apply(&mut self.retained, &perm);
-        }
-    }
-
-    fn update_retained(&mut self) {
-        let pool = self.pool.clone();
-        self.retained = pool.install(|| {
-            let d = self.cfg.spacing();
-            retention::retained_parts(&self.p, &self.nb, &self.rest, &self.solid, &self.objects, &self.kernel, d)
-        });
     }
 
     /// Rebuilds neighbour lists and density, porosity and saturation fields at the current
@@ -458,7 +443,6 @@ impl Simulation {
             density::compute(&self.ctx(), &mut dens);
             self.dens = dens;
         });
-        self.update_retained();
     }
 
     /// Builds the next step's implicit system (neighbours, fields, contacts, operator) at the
@@ -692,7 +676,6 @@ impl Simulation {
             ],
         };
         self.contacts = contacts;
-        self.update_retained();
         // Re-sort only after a committed step, so that a failed step changes nothing.
         if self.cfg.reorder_every > 0 && self.step.is_multiple_of(self.cfg.reorder_every as u64) {
             self.reorder_fluid();
@@ -892,14 +875,31 @@ impl Simulation {
     }
 
     /// The part (in [0, 1]) of each fluid particle that lies inside a sponge's deformed
-    /// volume (see [`crate::retention`]), at the positions after the last step (or of
-    /// [`Simulation::update_fields`]); empty before either.
-    pub fn retained(&self) -> &[f64] {
-        &self.retained
+    /// volume (see [`crate::retention`]) at the current positions; empty before the first
+    /// step or [`Simulation::update_fields`]. Where the water is, particle by particle (e.g.
+    /// for output); the retained water a trial reports is [`Simulation::pore_water`].
+    /// Computed on demand, with neighbour lists of its own (about a step's neighbour search).
+    pub fn retained(&self) -> Vec<f64> {
+        if self.dens.rho_ratio.len() != self.p.len() {
+            return Vec::new();
+        }
+        self.pool.install(|| {
+            let h = self.kernel.support();
+            let (lo, hi) = bounds(&self.p.x, h);
+            let mut grid = Grid::default();
+            grid.build_with(&self.p.x, lo, hi, h, self.cfg.neighbour_reach as usize);
+            let mut nb = NeighbourLists::default();
+            nb.build(&self.p.x, &grid, &self.kernel, self.p.n_fluid, true);
+            let d = self.cfg.spacing();
+            retention::retained_parts(&self.p, &nb, &self.rest, &self.solid, &self.objects, &self.kernel, d)
+        })
     }
 
     /// Current sponge volume, pore volume (m^3) and pore-volume-weighted mean saturation of
-    /// porous object `k`, from its particles' local porosity and saturation (last step).
+    /// porous object `k`. Each skeleton particle occupies its sampling volume `d^3` times
+    /// `J = det F` at the current positions ([`elasticity::volume_ratio`], exact for affine
+    /// deformation also at the faces), of which the solid part `(1 - phi) d^3` does not
+    /// change; saturation from the last step's fields.
     pub fn sponge_volumes(&self, k: usize) -> (f64, f64, f64) {
         let Some(o) = self.objects.get(k) else { return (0.0, 0.0, 0.0) };
         if self.dens.porosity.len() != self.p.len() {
@@ -909,14 +909,34 @@ impl Simulation {
         let phi = o.material.porosity;
         let v0 = self.volume();
         let (mut vs, mut vp, mut sw) = (0.0, 0.0, 0.0);
+        let nf = self.p.n_fluid;
         for a in o.range.clone() {
-            let cur = self.dens.porosity[a];
-            let vol = v0 * (1.0 - phi) / (1.0 - cur);
+            // The solid volume (1 - phi) v0 does not change; a particle compressed below it
+            // (J < 1 - phi, never seen) keeps no pore volume.
+            let j = elasticity::volume_ratio(&self.rest, &self.p.x, nf, a - nf);
+            let vol = v0 * j.max(1.0 - phi);
+            let cur = 1.0 - v0 * (1.0 - phi) / vol;
             vs += vol;
             vp += cur * vol;
             sw += cur * vol * self.dens.saturation[a];
         }
         (vs, vp, if vp > 0.0 { sw / vp } else { 0.0 })
+    }
+
+    /// The water the pores of porous object `k` hold (kg): the water's rest density times
+    /// the sum over its skeleton particles of current pore volume times saturation, i.e.
+    /// `rho_f V_pore S` of [`Simulation::sponge_volumes`] (last step).
+    ///
+    /// A squeeze pushes water out of the pores first into a film on the sponge's faces, a
+    /// fraction of a millimetre thick where the pores closed a few cm^3; particles of several
+    /// millimetres cannot form it and instead stand a fraction of a spacing further out,
+    /// still within the sponge's outline (see [`Simulation::retained`]). Counting the pores'
+    /// water instead sees the release at every resolution: a saturated cube squeezed 10 %
+    /// between frictionless plates releases the drained answer `rho_f (1 - 2 nu) eps V` within
+    /// 7 % at r = 2.5 mm by both counts, but only this one holds at r = 5 mm (validation).
+    pub fn pore_water(&self, k: usize) -> f64 {
+        let (_, v_pore, saturation) = self.sponge_volumes(k);
+        self.cfg.fluid.density * v_pore * saturation
     }
 
     /// Mass (kg), centre of mass (m) and centre-of-mass velocity (m/s) of porous object `k`.

@@ -316,18 +316,12 @@ impl Trial {
         Ok(())
     }
 
-    /// Retained liquid: mass of the fluid inside the sponge's deformed volume (kg; each
-    /// particle with the part of it inside, `retention.rs`), and the total liquid mass.
+    /// Retained liquid: the water the sponge's pores hold (kg, [`Simulation::pore_water`],
+    /// at most all the water there is), and the total liquid mass.
     fn retained(&self) -> (f64, f64) {
         let p = self.sim.particles();
-        let inside = self.sim.retained();
-        let mut total = 0.0;
-        let mut kept = 0.0;
-        for a in 0..p.n_fluid {
-            total += p.mass[a];
-            kept += p.mass[a] * inside.get(a).copied().unwrap_or(0.0);
-        }
-        (kept, total)
+        let total: f64 = p.mass[..p.n_fluid].iter().sum();
+        (self.sim.pore_water(0).min(total), total)
     }
 
     /// The observation after a step with these friction records, and the sponge's centre of
