@@ -171,12 +171,10 @@ def test_executes_chunks_and_reproduces_the_original(sweep_dir: Path, tmp_path: 
     assert orig["goal_kg"].to_list() == [float(track.water[t + H]) for t in ANCHORS]
     assert (orig["status"] == "ok").all() and (orig["phase_end"] == orig["goal_phase"]).all()
     # Fidelity: the recorded targets held for 20 ms, with the engine's 1 ms force loop,
-    # end within one fluid particle of the collected M_L. M_L counts whole particles; the
-    # only difference from the collected run is the zero-order hold of the (smoothly
-    # ramping) force target, which shifts the load by a few N, not enough to move a second
-    # particle across the retention threshold in 0.64 s. In the squeeze the water leaves
-    # with the load (the drag-coupled pressure makes outflow follow the force), so there the
-    # same shift may move one more particle: two particles at the squeeze anchor.
+    # end within one fluid particle's mass of the collected M_L (the water the pores hold).
+    # The only difference from the collected run is the zero-order hold of the (smoothly
+    # ramping) force target, which shifts the load by a few N and the pore volume with it;
+    # in the squeeze the water leaves with the load, so there the bound is two particles.
     for t, m, goal in zip(
         orig["t"].to_list(), orig["M_L_real_kg"].to_list(), orig["goal_kg"].to_list(), strict=True
     ):
@@ -186,7 +184,9 @@ def test_executes_chunks_and_reproduces_the_original(sweep_dir: Path, tmp_path: 
     fl = rows.filter(pl.col("objective") == "flow").sort("t")
     first = fl.filter(pl.col("chunk") == "first")["M_L_real_kg"].to_list()
     sel = fl.filter(pl.col("chunk") == "selected")["M_L_real_kg"].to_list()
-    assert sel == orig["M_L_real_kg"].to_list()  # same commands, same state: identical
+    # The selected chunk is the original commands as rmi rank stores them (float32), so its
+    # outcome is the original's up to that rounding.
+    np.testing.assert_allclose(sel, orig["M_L_real_kg"].to_list(), rtol=1e-9)
     assert first != sel
     # The broken chunk is recorded as such, with no value, and left out of the table.
     bad = rows.filter((pl.col("objective") == "diffusion") & (pl.col("chunk") == "selected"))

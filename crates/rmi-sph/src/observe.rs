@@ -1,10 +1,11 @@
 //! The interaction state y_t (paper Eq. 7) and the extras recorded beside it.
 //!
 //! Definitions (SI units):
-//! - *Retained* liquid `M_L`: the water the sponge's pores hold, `rho_f V_pore S`
-//!   ([`crate::Simulation::pore_water`]), at most the water there is. Water pressed out onto
-//!   the surface or dripping off counts as expelled: `M_expelled` is the rest of the water,
-//!   so that both sum to the total water mass exactly.
+//! - *Retained* liquid `M_L`: the water the sponge holds. A trial's sponge starts with all
+//!   the water in its pores, and what the pores lose since, `rho_f V_pore S` at the start
+//!   minus now ([`crate::Simulation::pore_water`]), is expelled: pressed out onto the
+//!   surface or dripping off. `M_expelled` is that loss and `M_L` the rest of the water, so
+//!   that both sum to the total water mass exactly.
 //! - Sponge volume: each skeleton particle occupies `d^3` at rest and `d^3 J` deformed, with
 //!   `J = det F` of its corrected deformation gradient; `V_sponge` is the sum and `V_pore`
 //!   subtracts the (incompressible) solid volume. `S` is the pore-volume-weighted mean of

@@ -212,6 +212,9 @@ struct Layer {
     /// Each phase entered and the retained water at its entry (kg).
     phase_water: Vec<(Phase, f64)>,
     initial_water: f64,
+    /// The water the sponge's pores held when the trial started (kg), the reference of
+    /// [`Trial::retained`].
+    pore_water0: f64,
 }
 
 const MAGIC: &[u8; 8] = b"RMITRIAL";
@@ -247,6 +250,7 @@ impl Trial {
             load_sum: (0.0, 0.0, 0),
             phase_water: Vec::new(),
             initial_water: 0.0,
+            pore_water0: sim.pore_water(0),
         };
         let friction_bodies = vec![true; sim.boundary().bodies.len()];
         let mut t = Trial { cfg, sim, gripper, friction_bodies, layer };
@@ -316,12 +320,16 @@ impl Trial {
         Ok(())
     }
 
-    /// Retained liquid: the water the sponge's pores hold (kg, [`Simulation::pore_water`],
-    /// at most all the water there is), and the total liquid mass.
+    /// Retained liquid (kg) and the total liquid mass (kg). The sponge starts holding all the
+    /// water; what its pores lose since ([`Simulation::pore_water`]) is expelled:
+    /// `M_L = total - clamp(P0 - P, 0, total)`. (The sampled pore water and the pores' nominal
+    /// volume differ by the lattice's rounding, a few per cent, so the pores' water is
+    /// counted by its change, in physical units.)
     fn retained(&self) -> (f64, f64) {
         let p = self.sim.particles();
         let total: f64 = p.mass[..p.n_fluid].iter().sum();
-        (self.sim.pore_water(0).min(total), total)
+        let lost = (self.layer.pore_water0 - self.sim.pore_water(0)).clamp(0.0, total);
+        (total - lost, total)
     }
 
     /// The observation after a step with these friction records, and the sponge's centre of
