@@ -36,8 +36,13 @@ pub fn dam_break(radius: f64) -> SimConfig {
 /// The three sponge sizes of the paper (x = squeeze axis, y, z = height), in m.
 pub const SPONGE_SIZES: [[f64; 3]; 3] = [[0.08, 0.08, 0.18], [0.10, 0.10, 0.20], [0.12, 0.12, 0.22]];
 
-/// A saturated sponge of `size` (m) standing on a floor, centred at x = y = 0.
+/// A saturated sponge of `size` (m) standing on a floor, centred at x = y = 0. Each side is
+/// the nearest whole number of particle spacings (`scene::snapped_box`; at r = 8 mm the
+/// 12 x 12 x 22 cm sponge is 12.8 x 12.8 x 22.4 cm), so that the block in the config is the
+/// one sampled and the floor meets its bottom face.
 pub fn sponge(size: [f64; 3], porosity: f64, radius: f64) -> SimConfig {
+    let d = 2.0 * radius;
+    let size: [f64; 3] = std::array::from_fn(|k| (size[k] / d).round().max(1.0) * d);
     let mut cfg = SimConfig { particle_radius: radius, dt: 1e-3, ..Default::default() };
     let material = PorousMaterial { porosity, ..Default::default() };
     let h = [size[0] / 2.0, size[1] / 2.0];
@@ -48,7 +53,6 @@ pub fn sponge(size: [f64; 3], porosity: f64, radius: f64) -> SimConfig {
         saturated: true,
         fixed: false,
     });
-    let d = 2.0 * radius;
     // The floor's top face is the block's bottom face: the lowest skeleton particles (centres
     // at d/2) start at their contact distance and the pore water below them at its rest
     // distance from the sunk wall layer. Four spacings thick, so that the layers of its top

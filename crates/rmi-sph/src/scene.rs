@@ -56,6 +56,23 @@ fn counts_for(min: &[f64; 3], max: &[f64; 3], spacing: f64, target: f64) -> [usi
     best
 }
 
+/// The box sampled for a block of `min..max` (m) at spacing `d`: the same centre, each side
+/// the nearest whole number of spacings (at least one), so that a lattice of spacing exactly
+/// `d` fills it. With another spacing the particles, each of volume `d^3`, would not fill
+/// the block at its density: a 12 cm block at d = 16 mm held eight layers 15 mm apart, a
+/// skeleton 16 % too dense, with room for only two thirds of its pore water.
+pub fn snapped_box(min: &[f64; 3], max: &[f64; 3], d: f64) -> ([f64; 3], [f64; 3]) {
+    let mut lo = [0.0; 3];
+    let mut hi = [0.0; 3];
+    for k in 0..3 {
+        let n = ((max[k] - min[k]) / d).round().max(1.0);
+        let centre = 0.5 * (min[k] + max[k]);
+        lo[k] = centre - 0.5 * n * d;
+        hi[k] = centre + 0.5 * n * d;
+    }
+    (lo, hi)
+}
+
 /// Everything [`build`] produces.
 pub struct Built {
     /// Dynamic particles.
@@ -81,19 +98,23 @@ pub fn build(cfg: &SimConfig, kernel: &CubicKernel) -> Built {
         p.material.push(mat);
     };
     let mf = cfg.fluid.density * vol;
+    let cells = |lo: &[f64; 3], hi: &[f64; 3]| -> [usize; 3] {
+        std::array::from_fn(|k| ((hi[k] - lo[k]) / d).round() as usize)
+    };
     for b in &cfg.scene.fluid_blocks {
-        let n: Vec<usize> = (0..3).map(|k| (((b.max[k] - b.min[k]) / d).round() as usize).max(1)).collect();
-        for x in lattice(&b.min, &b.max, [n[0], n[1], n[2]]) {
+        let (lo, hi) = snapped_box(&b.min, &b.max, d);
+        for x in lattice(&lo, &hi, cells(&lo, &hi)) {
             push(&mut p, x, Vector3::from(b.velocity), mf, FLUID);
         }
     }
     for b in cfg.scene.porous_blocks.iter().filter(|b| b.saturated) {
         // Pore water at number density phi / d^3 so that fluid plus (1-phi) solid sums to 1.
         let phi = b.material.porosity;
-        let boxvol: f64 = (0..3).map(|k| b.max[k] - b.min[k]).product();
-        let n = counts_for(&b.min, &b.max, d * phi.powf(-1.0 / 3.0), phi * boxvol / vol);
+        let (lo, hi) = snapped_box(&b.min, &b.max, d);
+        let boxvol: f64 = (0..3).map(|k| hi[k] - lo[k]).product();
+        let n = counts_for(&lo, &hi, d * phi.powf(-1.0 / 3.0), phi * boxvol / vol);
         let amp = cfg.scene.jitter * d;
-        for x in lattice(&b.min, &b.max, n) {
+        for x in lattice(&lo, &hi, n) {
             let k = p.x.len() as u64;
             let dx = if amp > 0.0 {
                 Vector3::new(
@@ -112,9 +133,9 @@ pub fn build(cfg: &SimConfig, kernel: &CubicKernel) -> Built {
     let mut fixed = Vec::new();
     for (k, b) in cfg.scene.porous_blocks.iter().enumerate() {
         let start = p.x.len();
-        let n: Vec<usize> = (0..3).map(|q| (((b.max[q] - b.min[q]) / d).round() as usize).max(1)).collect();
+        let (lo, hi) = snapped_box(&b.min, &b.max, d);
         let m = b.material.dry_density * vol;
-        for x in lattice(&b.min, &b.max, [n[0], n[1], n[2]]) {
+        for x in lattice(&lo, &hi, cells(&lo, &hi)) {
             push(&mut p, x, Vector3::zeros(), m, (k + 1) as u16);
             fixed.push(b.fixed);
         }
@@ -132,8 +153,8 @@ pub fn build(cfg: &SimConfig, kernel: &CubicKernel) -> Built {
             mu,
             lambda_trace: if cfg.elasticity_reference_trace { 1.0 } else { lambda },
             lambda,
-            rest_min: Vector3::from(b.min),
-            rest_max: Vector3::from(b.max),
+            rest_min: Vector3::from(lo),
+            rest_max: Vector3::from(hi),
         });
     }
     let rest = rest_data(&p, &fixed, kernel);
@@ -207,4 +228,20 @@ pub fn rest_data(p: &Particles, fixed: &[bool], kernel: &CubicKernel) -> SolidRe
         })
         .collect();
     rest
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn blocks_snap_to_whole_spacings_about_their_centre() {
+        let (lo, hi) = snapped_box(&[-0.06, -0.05, 0.0], &[0.06, 0.05, 0.22], 0.016);
+        // 7.5 spacings round to 8, 6.25 to 6, 13.75 to 14.
+        let n: Vec<f64> = (0..3).map(|k| (hi[k] - lo[k]) / 0.016).collect();
+        assert!(n.iter().zip([8.0, 6.0, 14.0]).all(|(a, b)| (a - b).abs() < 1e-9), "{n:?}");
+        assert!((lo[0] + hi[0]).abs() < 1e-12 && (lo[2] + hi[2] - 0.22).abs() < 1e-12);
+        let (lo, hi) = snapped_box(&[0.0; 3], &[0.001; 3], 0.016);
+        assert!((hi[0] - lo[0] - 0.016).abs() < 1e-12, "at least one spacing");
+    }
 }

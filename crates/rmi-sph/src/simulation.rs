@@ -44,7 +44,7 @@ pub struct StepStats {
 }
 
 /// Factor by which [`Simulation::soak`] raises every skeleton's permeability: the pore water
-/// settles within a fifth of a second instead of seconds (Darcy flow, slowed by the drag in
+/// settles within half a second instead of minutes (Darcy flow, slowed by the drag in
 /// proportion to it).
 pub const SOAK_PERMEABILITY_FACTOR: f64 = 1000.0;
 

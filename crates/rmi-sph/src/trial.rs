@@ -72,7 +72,7 @@ impl Default for TrialConfig {
             seed: 0,
             jitter: 0.05,
             saturated: true,
-            soak_time: 0.25,
+            soak_time: 0.5,
             material: PorousMaterial::default(),
             gripper: GripperConfig::default(),
             friction: FrictionParams::default(),
@@ -130,7 +130,8 @@ impl TrialConfig {
         self.sim_config().validate()
     }
 
-    /// The simulation scene: the sponge on its floor, the pads at both sides.
+    /// The simulation scene: the sponge on its floor (`presets::sponge`: its sides the
+    /// nearest whole numbers of spacings), the pads at both sides.
     pub fn sim_config(&self) -> SimConfig {
         let mut cfg = presets::sponge(self.size, self.porosity, self.particle_radius);
         cfg.dt = self.dt;
