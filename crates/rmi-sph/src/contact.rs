@@ -24,9 +24,20 @@ pub struct Contact {
     pub point: Vector3<f64>,
     /// Normal force on the particle (N), `>= 0`.
     pub normal_force: f64,
-    /// For a contact held as a stick inside the implicit solves: the tangential force (N) the
-    /// constraint exerted on the particle (already applied, and already in the body's load).
-    pub stick_force: Option<Vector3<f64>>,
+    /// Friction of a contact held as a stick inside the implicit solves (already applied,
+    /// and already in the body's load); `None` for the others.
+    pub held: Option<HeldFriction>,
+}
+
+/// The friction of a contact that the step's solves held as a stick.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HeldFriction {
+    /// Tangential force on the particle (N).
+    pub force: Vector3<f64>,
+    /// True when the force the stick needed stayed within the static cone `mu_st N`; false
+    /// when it left the cone within the step and the contact slid with the kinetic force
+    /// `mu_kin N` instead (the anchor is to be dropped).
+    pub stuck: bool,
 }
 
 impl Contact {
@@ -35,14 +46,13 @@ impl Contact {
     pub fn add_impulse(&mut self, j: &Vector3<f64>, dt: f64) {
         let jn = self.normal.dot(j);
         self.normal_force += jn / dt;
-        if let Some(f) = &mut self.stick_force {
-            *f += (j - self.normal * jn) / dt;
+        if let Some(h) = &mut self.held {
+            h.force += (j - self.normal * jn) / dt;
         }
     }
 }
 
-/// A contact that stuck in the previous step: the robot layer's anchor, which the implicit
-/// solves hold as a velocity constraint (paper Eq. 4 inside the coupled system).
+/// A contact that stuck in the previous step: the robot layer's anchor.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Stick {
     /// Dynamic particle index.
@@ -51,9 +61,37 @@ pub struct Stick {
     pub body: u16,
     /// Anchor (stick point) in world coordinates at the start of the step (m).
     pub anchor: Vector3<f64>,
-    /// Positional recovery gain beta in (0, 1]: the tangential velocity relative to the body
-    /// is `beta e / dt` for the anchor offset `e`.
+}
+
+/// Coulomb friction between skeleton particles and bodies, solved inside the implicit
+/// system (the robot layer's law, paper Eq. 4, as constraints): every skeleton contact with
+/// a body in `bodies` first holds its tangential velocity, the body's plus `gain e / dt`
+/// toward its anchor if it has one; a contact whose holding force leaves the static cone
+/// `mu_static N` slides with the kinetic force `mu_kinetic N` along it instead.
+#[derive(Clone, Copy, Debug)]
+pub struct Friction<'a> {
+    /// Per body: whether its contacts have friction.
+    pub bodies: &'a [bool],
+    /// Static coefficient mu_st.
+    pub mu_static: f64,
+    /// Kinetic coefficient mu_kin (at most mu_st).
+    pub mu_kinetic: f64,
+    /// Positional recovery gain beta in (0, 1].
     pub gain: f64,
+    /// The anchors of the previous step, sorted by particle and body.
+    pub anchors: &'a [Stick],
+}
+
+impl Friction<'_> {
+    /// Whether contacts with body `bi` have friction.
+    pub fn on(&self, bi: usize) -> bool {
+        self.bodies.get(bi).copied().unwrap_or(false)
+    }
+
+    /// The anchor of `particle` on `body`, if it stuck there in the previous step.
+    pub fn anchor(&self, particle: u32, body: u16) -> Option<&Stick> {
+        self.anchors.binary_search_by_key(&(particle, body), |s| (s.particle, s.body)).ok().map(|k| &self.anchors[k])
+    }
 }
 
 /// Fraction of the particle radius a fluid particle may sink into a body before projection.
@@ -112,7 +150,7 @@ pub fn resolve(
                             normal: n,
                             point,
                             normal_force: p.mass[a] * dvn / dt,
-                            stick_force: None,
+                            held: None,
                         });
                     }
                 }
@@ -131,9 +169,8 @@ const HOLD_SKIN: f64 = 0.05;
 /// deepest), with the normal velocity that lands them exactly one radius from the surface.
 ///
 /// `active` (by solid index) marks contacts that pushed in the previous step; they are kept
-/// while within the hold skin, and are released when they pulled. A contact with a stick
-/// on its body (`sticks`, sorted by particle and body) also holds its tangential velocity:
-/// the body's plus the recovery `beta e / dt` toward the anchor.
+/// while within the hold skin, and are released when they pulled. A contact with a body
+/// that has `friction` also holds its tangential velocity (see [`Friction`]).
 pub fn detect(
     p: &Particles,
     nbb: &NeighbourLists,
@@ -141,7 +178,7 @@ pub fn detect(
     radius: f64,
     dt: f64,
     active: &[bool],
-    sticks: &[Stick],
+    friction: Option<&Friction>,
 ) -> Vec<(crate::nonpressure::VelocityConstraint, u16, Vector3<f64>)> {
     let nf = p.n_fluid;
     let found: Vec<Option<(crate::nonpressure::VelocityConstraint, u16, Vector3<f64>)>> = (nf..p.len())
@@ -166,12 +203,11 @@ pub fn detect(
                 let hold = active[a - nf] && dist < radius * (1.0 + HOLD_SKIN);
                 if gap < 0.0 || hold {
                     let target = vb.dot(&n) + (radius - dist) / dt;
-                    let tangential =
-                        sticks.binary_search_by_key(&(a as u32, bi as u16), |s| (s.particle, s.body)).ok().map(|k| {
-                            let s = &sticks[k];
-                            let t = vb + s.gain / dt * (s.anchor - point);
-                            t - n * n.dot(&t)
-                        });
+                    let tangential = friction.filter(|f| f.on(bi)).map(|f| {
+                        let recovery = f.anchor(a as u32, bi as u16).map_or(Vector3::zeros(), |s| s.anchor - point);
+                        let t = vb + f.gain / dt * recovery;
+                        t - n * n.dot(&t)
+                    });
                     let con =
                         crate::nonpressure::VelocityConstraint { particle: a as u32, normal: n, target, tangential };
                     if best.as_ref().is_none_or(|b| dist < b.0) {
@@ -197,7 +233,7 @@ pub fn merge(a: Vec<Contact>, b: Vec<Contact>) -> Vec<Contact> {
         match out.last_mut() {
             Some(last) if last.particle == c.particle && last.body == c.body => {
                 last.normal_force += c.normal_force;
-                last.stick_force = last.stick_force.or(c.stick_force);
+                last.held = last.held.or(c.held);
             }
             _ => out.push(c),
         }

@@ -7,16 +7,17 @@
 //! never reverse the slip within one step, is applied instead. Memoryless damping would let
 //! the integration error of a held sponge accumulate into a slow slide.
 //!
-//! Coupled (the default): friction acts on the skeleton inside the implicit system that the
-//! drag couples its pore water in. A contact that stuck in the previous step is a velocity
-//! constraint of the step's solves (its static force is the constraint's impulse, checked
-//! against the cone afterwards), and the other friction forces reach the velocities through
-//! the same operator ([`ContactStage::respond`]). Applied after the solve to the skeleton
-//! particle alone, friction stops a held particle but not its water, which then runs along
-//! the pads at centimetres per second instead of seeping at the Darcy speed.
+//! Coupled (the default): the same law is solved inside the implicit system that the drag
+//! couples the pore water in ([`crate::contact::Friction`]). Every contact first holds its
+//! tangential velocity, the pad's plus `beta e / dt` toward its anchor, as a constraint of
+//! the step's solves; one whose holding force leaves `mu_st N` slides with `mu_kin N` along
+//! it, through the same operator. This module then keeps the anchors. Applied after the
+//! solve to the skeleton particle alone (`coupled: false`), friction stops a held particle
+//! but not its water, which then runs along the pads at centimetres per second instead of
+//! seeping at the Darcy speed.
 
 use crate::boundary::{BodyState, Boundary};
-use crate::contact::Stick;
+use crate::contact::{Friction, Stick};
 use crate::simulation::ContactStage;
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
@@ -33,9 +34,9 @@ pub struct FrictionParams {
     pub beta: f64,
     /// Regulariser of the slip direction (m/s), > 0.
     pub eps_v: f64,
-    /// Apply friction inside the coupled implicit system (sticks as constraints of the
-    /// solves, other forces through its operator); `false` adds each force to its skeleton
-    /// particle's velocity after the solves, as the paper's Eq. 4 reads.
+    /// Solve friction inside the coupled implicit system (contacts as constraints of the
+    /// solves, Coulomb's cone enforced on their reactions); `false` adds each Eq. 4 force to
+    /// its skeleton particle's velocity after the solves, as the paper reads.
     pub coupled: bool,
 }
 
@@ -146,44 +147,41 @@ impl ContactMemory {
         self.anchors.get(s)?.iter().find(|a| a.body == body)
     }
 
-    /// The anchors as sticks for [`crate::Simulation::step_with_sticks`], sorted by particle
-    /// and body, in world coordinates of the bodies' current poses; `n_fluid` offsets solid
-    /// indices to particle indices.
-    pub fn sticks(&self, n_fluid: usize, boundary: &Boundary, p: &FrictionParams) -> Vec<Stick> {
+    /// The anchors in world coordinates of the bodies' current poses, sorted by particle and
+    /// body, for [`Friction::anchors`]; `n_fluid` offsets solid indices to particle indices.
+    pub fn sticks(&self, n_fluid: usize, boundary: &Boundary) -> Vec<Stick> {
         let mut out = Vec::new();
         for (s, slot) in self.anchors.iter().enumerate() {
             let first = out.len();
             for a in slot {
                 let b = &boundary.bodies[a.body as usize].state;
-                out.push(Stick {
-                    particle: (n_fluid + s) as u32,
-                    body: a.body,
-                    anchor: b.position + b.rotation * Vector3::from(a.local),
-                    gain: p.beta,
-                });
+                let anchor = b.position + b.rotation * Vector3::from(a.local);
+                out.push(Stick { particle: (n_fluid + s) as u32, body: a.body, anchor });
             }
             out[first..].sort_by_key(|x| x.body);
         }
         out
     }
 
+    /// The friction law of `p` on `bodies` with these anchors, for
+    /// [`crate::Simulation::step_with_friction`].
+    pub fn law<'a>(anchors: &'a [Stick], bodies: &'a [bool], p: &FrictionParams) -> Friction<'a> {
+        Friction { bodies, mu_static: p.mu_static, mu_kinetic: p.mu_kinetic, gain: p.beta, anchors }
+    }
+
     /// Applies friction to every skeleton contact with a body in `bodies` (and a positive
     /// normal load), updates the anchors, adds the reactions to the body loads and returns
     /// one record per contact, in particle order. Contacts that ended drop their anchors.
     ///
-    /// A contact the solves held as a stick ([`crate::contact::Contact::stick_force`]) keeps
-    /// its anchor while that force lies in the static cone and lets go otherwise (from the
-    /// next step on, where the kinetic force acts); its force is already applied. Every
-    /// other contact gets Eq. 4, through the implicit system when `p.coupled`.
+    /// A contact whose friction the step's solves held ([`crate::contact::Contact::held`],
+    /// coupled friction) is bookkept only: its force is applied and in the body's load, and
+    /// its anchor is kept (or set) when it stuck and dropped when it slid. Every other
+    /// contact gets Eq. 4 on its particle's velocity.
     pub fn apply(&mut self, stage: &mut ContactStage<'_>, bodies: &[bool], p: &FrictionParams) -> Vec<ContactFriction> {
         let nf = stage.particles.n_fluid;
         let dt = stage.dt;
         let mut touched = vec![false; self.anchors.len()];
         let mut out = Vec::new();
-        // Per record: the body's velocity at the contact and the tangential projector, to
-        // read the velocity after friction once every force is applied.
-        let mut frames = Vec::new();
-        let mut dv = if p.coupled { vec![Vector3::zeros(); stage.v.len()] } else { Vec::new() };
         for c in stage.contacts {
             let a = c.particle as usize;
             let bi = c.body as usize;
@@ -202,60 +200,45 @@ impl ContactMemory {
             let m = stage.particles.mass[a];
             let slot = &mut self.anchors[s];
             let existing = slot.iter().position(|x| x.body == c.body);
-            let (f, v_tan) = match (c.stick_force, existing) {
-                (Some(held), Some(k)) => {
-                    let stick = held.norm() <= p.mu_static * c.normal_force;
-                    if !stick {
-                        slot.remove(k);
-                    }
-                    // The tendency before friction: the held velocity without the force.
-                    let v_tan = proj * (stage.v[a] - vb) - dt / m * held;
-                    (FrictionForce { force: held, stick }, v_tan)
+            let (f, v_tan) = match c.held {
+                Some(held) => {
+                    let f = FrictionForce { force: held.force, stick: held.stuck };
+                    // The tendency before friction: the velocity without the force.
+                    (f, proj * (stage.v[a] - vb) - dt / m * held.force)
                 }
-                _ => {
+                None => {
                     let v_tan = proj * (stage.v[a] - vb);
                     let e = match existing {
                         Some(k) => proj * (body.position + body.rotation * Vector3::from(slot[k].local) - c.point),
                         None => Vector3::zeros(),
                     };
                     let f = coulomb(m, dt, c.normal_force, &e, &v_tan, p);
-                    match (f.stick, existing) {
-                        (true, None) => {
-                            let q = body.rotation.inverse() * (c.point - body.position);
-                            slot.push(Anchor { body: c.body, local: q.into() });
-                        }
-                        (false, Some(k)) => {
-                            slot.remove(k);
-                        }
-                        _ => {}
-                    }
-                    if p.coupled {
-                        dv[a] += dt / m * f.force;
-                    } else {
-                        stage.v[a] += dt / m * f.force;
-                    }
+                    stage.v[a] += dt / m * f.force;
                     let (force, torque) = &mut stage.body_forces[bi];
                     *force -= f.force;
                     *torque -= (c.point - body.position).cross(&f.force);
                     (f, v_tan)
                 }
             };
-            frames.push((vb, proj));
+            match (f.stick, existing) {
+                (true, None) => {
+                    let q = body.rotation.inverse() * (c.point - body.position);
+                    slot.push(Anchor { body: c.body, local: q.into() });
+                }
+                (false, Some(k)) => {
+                    slot.remove(k);
+                }
+                _ => {}
+            }
             out.push(ContactFriction {
                 particle: c.particle,
                 body: c.body,
                 normal_force: c.normal_force,
                 v_tan,
                 force: f.force,
-                v_tan_corr: Vector3::zeros(),
+                v_tan_corr: proj * (stage.v[a] - vb),
                 stick: f.stick,
             });
-        }
-        if dv.iter().any(|x| *x != Vector3::zeros()) {
-            stage.respond(dv);
-        }
-        for (r, (vb, proj)) in out.iter_mut().zip(&frames) {
-            r.v_tan_corr = proj * (stage.v[r.particle as usize] - vb);
         }
         // A contact that ended forgets its anchor; so does one whose body lost the contact.
         for (s, slot) in self.anchors.iter_mut().enumerate() {
@@ -366,11 +349,19 @@ mod tests {
             normal: Vector3::z(),
             point: Vector3::new(p.x[0].x, p.x[0].y, -0.01),
             normal_force: normal,
-            stick_force: None,
+            held: None,
         }];
         let mut v = p.v.clone();
         let mut forces = vec![(Vector3::zeros(), Vector3::zeros())];
-        let mut stage = ContactStage::plain(p, &mut v, &contacts, b, &mut forces, DT, &[false]);
+        let mut stage = ContactStage {
+            particles: p,
+            v: &mut v,
+            contacts: &contacts,
+            boundary: b,
+            body_forces: &mut forces,
+            dt: DT,
+            rest_fixed: &[false],
+        };
         let out = mem.apply(&mut stage, &[true], &FrictionParams::default());
         // Reaction on the plate balances the force on the particle.
         assert!((forces[0].0 + out[0].force).norm() < 1e-15);
@@ -405,7 +396,15 @@ mod tests {
         // A contact that ends forgets its anchor.
         let mut stage_v = p.v.clone();
         let mut forces = vec![(Vector3::zeros(), Vector3::zeros())];
-        let mut stage = ContactStage::plain(&p, &mut stage_v, &[], &b, &mut forces, DT, &[false]);
+        let mut stage = ContactStage {
+            particles: &p,
+            v: &mut stage_v,
+            contacts: &[],
+            boundary: &b,
+            body_forces: &mut forces,
+            dt: DT,
+            rest_fixed: &[false],
+        };
         mem.apply(&mut stage, &[true], &FrictionParams::default());
         assert!(mem.is_empty());
     }

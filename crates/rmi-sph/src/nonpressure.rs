@@ -83,7 +83,7 @@ pub struct Op<'a> {
     /// Laplacian one is viscosity (fluid-fluid) or drag.
     coef: Vec<Vec<[f64; 2]>>,
     /// Contact constraints, and per particle the components they hold.
-    constraints: &'a [VelocityConstraint],
+    constraints: Vec<VelocityConstraint>,
     filters: Vec<Filter>,
     /// Inverted preconditioner blocks.
     minv: Vec<Matrix3<f64>>,
@@ -124,7 +124,7 @@ impl<'a> Op<'a> {
         dens: &'a DensityFields,
         ef: &'a ElasticFields,
         s: &'a NonPressureSettings,
-        constraints: &'a [VelocityConstraint],
+        constraints: Vec<VelocityConstraint>,
     ) -> Self {
         let nf = c.p.n_fluid;
         let rho = (0..c.p.len())
@@ -140,8 +140,8 @@ impl<'a> Op<'a> {
             eps_h: 0.01 * h * h,
             implicit_visc: s.viscosity_mode == ViscosityMode::Implicit && s.viscosity > 0.0,
             coef: Vec::new(),
+            filters: constraint_field(c.p.len(), &constraints),
             constraints,
-            filters: constraint_field(c.p.len(), constraints),
             minv: Vec::new(),
             coarse: None,
         };
@@ -156,6 +156,14 @@ impl<'a> Op<'a> {
             op.coarse = op.coarse_level();
         }
         op
+    }
+
+    /// Releases the tangential velocity of constraint `k` (a stick that slides): from now on
+    /// the solves hold only its normal velocity.
+    pub fn release_tangential(&mut self, k: usize) {
+        let con = &mut self.constraints[k];
+        con.tangential = None;
+        self.filters[con.particle as usize] = Filter::Normal(con.normal);
     }
 
     /// Aggregates, the rows of `A Z` and the factored coarse matrix (None without aggregates).
@@ -554,7 +562,7 @@ pub fn solve(
     dv_prev: &mut [Vector3<f64>],
     w: &mut CgWork,
 ) -> (CgStats, Vec<Vector3<f64>>) {
-    let (c, ef, s, constraints) = (op.c, op.ef, op.s, op.constraints);
+    let (c, ef, s, constraints) = (op.c, op.ef, op.s, &op.constraints);
     let n = c.p.len();
     let nf = c.p.n_fluid;
     for buf in [&mut w.r, &mut w.p, &mut w.ap, &mut w.b] {
@@ -847,7 +855,7 @@ pub fn coupling_forces(c: &Ctx, dens: &DensityFields, v: &[Vector3<f64>]) -> Vec
         coarse_cell: 0.0,
     };
     let ef = ElasticFields::default();
-    let op = Op::new(c, dens, &ef, &s, &[]);
+    let op = Op::new(c, dens, &ef, &s, Vec::new());
     (0..c.p.len()).into_par_iter().map(|a| op.pair_forces(a, v) + op.adhesion_position_force(a)).collect()
 }
 

@@ -2,7 +2,7 @@
 
 use crate::boundary::{BodyState, Boundary};
 use crate::config::SimConfig;
-use crate::contact::{self, Contact, Stick};
+use crate::contact::{self, Contact, Friction, HeldFriction};
 use crate::ctx::Ctx;
 use crate::density::{self, DensityFields};
 use crate::elasticity::{self, ElasticFields};
@@ -30,10 +30,9 @@ pub struct StepStats {
     /// Implicit response to the pressure impulse (zero iterations when
     /// `pressure.drag_coupled` is off or there is no skeleton).
     pub pressure_response: CgStats,
-    /// Implicit response to impulses the step's hook applied through
-    /// [`ContactStage::respond`] (the robot layer's kinetic friction); zero iterations when
-    /// there were none.
-    pub hook_response: CgStats,
+    /// Implicit response that let held sticks slide whose force left the static cone
+    /// (zero iterations when none did).
+    pub slip_response: CgStats,
     /// Dynamic-dynamic neighbour pairs stored.
     pub neighbour_pairs: usize,
     /// Particle-body contacts resolved.
@@ -369,21 +368,21 @@ impl Simulation {
     where
         F: FnOnce(&mut ContactStage<'_>) + Send,
     {
-        self.step_with_sticks(&[], hook)
+        self.step_with_friction(None, hook)
     }
 
-    /// [`Simulation::step_with`] with contacts that stick held inside the implicit solves:
-    /// a skeleton particle in contact with a body it has a stick on (`sticks`, sorted by
-    /// particle and body) keeps its whole velocity at the stick target in the non-pressure
-    /// solve and the pressure response, so that the drag couples its pore water to a held
-    /// particle; the static friction force is the constraint's tangential impulse
-    /// ([`Contact::stick_force`]), already in the body's load.
-    pub fn step_with_sticks<F>(&mut self, sticks: &[Stick], hook: F) -> Result<&StepStats>
+    /// [`Simulation::step_with`] with Coulomb friction between the skeleton and the bodies
+    /// solved inside the implicit system ([`Friction`]): each such contact holds its whole
+    /// velocity in the non-pressure solve and the pressure response, so that the drag
+    /// couples its pore water to it; contacts whose holding force left the static cone then
+    /// slide with the kinetic force, passed through the same operator. The friction of each
+    /// contact ([`Contact::held`]) is applied and in the body's load before the hook runs.
+    pub fn step_with_friction<F>(&mut self, friction: Option<&Friction>, hook: F) -> Result<&StepStats>
     where
         F: FnOnce(&mut ContactStage<'_>) + Send,
     {
         let pool = self.pool.clone();
-        pool.install(|| self.step_inner(sticks, hook))?;
+        pool.install(|| self.step_inner(friction, hook))?;
         Ok(&self.stats)
     }
 
@@ -457,9 +456,9 @@ impl Simulation {
         elasticity::prepare(&ctx, &self.solid.rotation, &self.dens.saturation, &mut self.ef);
         let nps = nonpressure_settings(cfg);
         let detected =
-            contact::detect(&self.p, &self.nbb, &self.bnd, cfg.particle_radius, cfg.dt, &self.contact_active, &[]);
+            contact::detect(&self.p, &self.nbb, &self.bnd, cfg.particle_radius, cfg.dt, &self.contact_active, None);
         let cons: Vec<_> = detected.iter().map(|d| d.0).collect();
-        let op = nonpressure::Op::new(&ctx, &self.dens, &self.ef, &nps, &cons);
+        let op = nonpressure::Op::new(&ctx, &self.dens, &self.ef, &nps, cons);
         f(&op)
     }
 
@@ -495,7 +494,7 @@ impl Simulation {
             .map_or(Vector3::zeros(), |o| o.range.clone().map(|a| f[a - nf]).fold(Vector3::zeros(), |s, x| s + x))
     }
 
-    fn step_inner<F>(&mut self, sticks: &[Stick], hook: F) -> Result<()>
+    fn step_inner<F>(&mut self, friction: Option<&Friction>, hook: F) -> Result<()>
     where
         F: FnOnce(&mut ContactStage<'_>),
     {
@@ -523,11 +522,11 @@ impl Simulation {
         // Skeleton-body contacts enter the implicit solve as velocity constraints, so that
         // the contact force is the constraint reaction of the stiff elastic system.
         let detected =
-            contact::detect(&self.p, &self.nbb, &self.bnd, cfg.particle_radius, dt, &self.contact_active, sticks);
+            contact::detect(&self.p, &self.nbb, &self.bnd, cfg.particle_radius, dt, &self.contact_active, friction);
         let implicit = nonpressure::needed(&ctx, &nps);
         let mut contacts: Vec<Contact> = Vec::with_capacity(detected.len());
         let cons: Vec<_> = detected.iter().map(|d| d.0).collect();
-        let system = implicit.then(|| nonpressure::Op::new(&ctx, &self.dens, &self.ef, &nps, &cons));
+        let mut system = implicit.then(|| nonpressure::Op::new(&ctx, &self.dens, &self.ef, &nps, cons));
         let cg = if let Some(op) = &system {
             let kappa_prev: Vec<f64> = self.kappa_dt2.iter().map(|k| k / (dt * dt)).collect();
             let (cg, impulses) = nonpressure::solve(op, &kappa_prev, &g, &mut v, &mut self.dv_prev, &mut self.cgwork);
@@ -538,7 +537,7 @@ impl Simulation {
                     normal: con.normal,
                     point: *point,
                     normal_force: 0.0,
-                    stick_force: con.tangential.map(|_| Vector3::zeros()),
+                    held: con.tangential.map(|_| HeldFriction { force: Vector3::zeros(), stuck: true }),
                 };
                 c.add_impulse(&j, dt);
                 contacts.push(c);
@@ -597,6 +596,12 @@ impl Simulation {
             }
             _ => CgStats::default(),
         };
+        let slip_response = match (&mut system, friction) {
+            (Some(op), Some(f)) => {
+                release_slipping_sticks(op, &mut contacts, f, &self.p.mass, dt, &mut v, &mut self.cgwork)
+            }
+            _ => CgStats::default(),
+        };
         for (a, vi) in v.iter_mut().enumerate().skip(nf) {
             if fixed[a - nf] {
                 *vi = Vector3::zeros();
@@ -617,7 +622,7 @@ impl Simulation {
         }
         let mut forces: Vec<(Vector3<f64>, Vector3<f64>)> = reactions;
         for c in &contacts {
-            let f = -(c.normal * c.normal_force + c.stick_force.unwrap_or_default());
+            let f = -(c.normal * c.normal_force + c.held.map_or(Vector3::zeros(), |h| h.force));
             let bi = c.body as usize;
             forces[bi].0 += f;
             forces[bi].1 += (c.point - self.bnd.bodies[bi].state.position).cross(&f);
@@ -630,12 +635,8 @@ impl Simulation {
             body_forces: &mut forces,
             dt,
             rest_fixed: &self.rest.fixed,
-            system: system.as_ref().map(|op| (op, &mut self.cgwork)),
-            constraints: &detected,
-            response: CgStats::default(),
         };
         hook(&mut stage);
-        let hook_response = stage.response;
         // Divergence guard before anything is committed.
         let vmax = crate::par::max(v.len(), |a| v[a].norm());
         if !vmax.is_finite() || vmax > cfg.max_velocity {
@@ -663,7 +664,7 @@ impl Simulation {
             pressure: pstats,
             cg,
             pressure_response,
-            hook_response,
+            slip_response,
             neighbour_pairs: self.nb.pairs(),
             contacts: contacts.len(),
             seconds: [
@@ -764,6 +765,50 @@ impl Simulation {
     }
 }
 
+/// Lets the held sticks whose friction left the static cone `mu_st N` slide within the step
+/// (Coulomb's bound inside the coupled system): each one's tangential force becomes the
+/// kinetic force `mu_kin N` along it, the difference passes through the implicit operator
+/// with that particle's tangential velocity released (the other constraints held), and its
+/// contact records the kinetic force. `contacts` are aligned with the operator's
+/// constraints. One pass: a stick that the release overloads in turn slides from the next
+/// step on. Returns the response's statistics (zero iterations when no stick slid).
+fn release_slipping_sticks(
+    op: &mut nonpressure::Op,
+    contacts: &mut [Contact],
+    friction: &Friction,
+    mass: &[f64],
+    dt: f64,
+    v: &mut [Vector3<f64>],
+    work: &mut CgWork,
+) -> CgStats {
+    let mut dv: Vec<Vector3<f64>> = Vec::new();
+    for (k, c) in contacts.iter_mut().enumerate() {
+        let Some(h) = c.held.as_mut() else { continue };
+        let normal = c.normal_force.max(0.0);
+        let f = h.force.norm();
+        if f <= friction.mu_static * normal {
+            continue;
+        }
+        let kinetic = h.force * (friction.mu_kinetic * normal / f);
+        if dv.is_empty() {
+            dv = vec![Vector3::zeros(); v.len()];
+        }
+        let a = c.particle as usize;
+        dv[a] += dt / mass[a] * (kinetic - h.force);
+        *h = HeldFriction { force: kinetic, stuck: false };
+        op.release_tangential(k);
+    }
+    if dv.is_empty() {
+        return CgStats::default();
+    }
+    let (stats, impulses) = nonpressure::pressure_response(op, &mut dv, None, work);
+    v.iter_mut().zip(&dv).for_each(|(vi, d)| *vi += d);
+    for (c, j) in contacts.iter_mut().zip(&impulses) {
+        c.add_impulse(j, dt);
+    }
+    stats
+}
+
 /// What the per-step hook may touch: velocities after pressure and contact projection.
 pub struct ContactStage<'a> {
     /// Dynamic particles (positions at the start of the step).
@@ -780,68 +825,12 @@ pub struct ContactStage<'a> {
     pub dt: f64,
     /// Pinned skeleton particles (by solid index).
     pub rest_fixed: &'a [bool],
-    /// The step's implicit system (None when the step had none: no skeleton, explicit
-    /// viscosity), for [`ContactStage::respond`].
-    system: Option<(&'a nonpressure::Op<'a>, &'a mut CgWork)>,
-    /// The constraints it held, with their bodies and contact points.
-    constraints: &'a [(nonpressure::VelocityConstraint, u16, Vector3<f64>)],
-    response: CgStats,
 }
 
-impl<'a> ContactStage<'a> {
-    /// A stage without an implicit system (friction tests on hand-made contacts).
-    #[cfg(test)]
-    pub(crate) fn plain(
-        particles: &'a Particles,
-        v: &'a mut [Vector3<f64>],
-        contacts: &'a [Contact],
-        boundary: &'a Boundary,
-        body_forces: &'a mut [(Vector3<f64>, Vector3<f64>)],
-        dt: f64,
-        rest_fixed: &'a [bool],
-    ) -> Self {
-        ContactStage {
-            particles,
-            v,
-            contacts,
-            boundary,
-            body_forces,
-            dt,
-            rest_fixed,
-            system: None,
-            constraints: &[],
-            response: CgStats::default(),
-        }
-    }
-
+impl ContactStage<'_> {
     /// The state of body `i`.
     pub fn body(&self, i: usize) -> &BodyState {
         &self.boundary.bodies[i].state
-    }
-
-    /// Adds velocity increments `dv` (m/s, one per dynamic particle; e.g. a friction force's
-    /// `dt f / m` on its particle) through the step's implicit system: the increment becomes
-    /// the right-hand side `m dv` of the coupled operator (drag, adhesion, viscosity,
-    /// elasticity, the step's contact constraints held), so that a force on a skeleton
-    /// particle moves its pore water with it as the drag does within a step, instead of
-    /// sliding the skeleton under its water. Adds the result to `v` and the constraints'
-    /// reactions to the body loads. Without an implicit system `dv` is added as it is. The
-    /// caller adds the reactions of its own forces to the body loads, as with `v`.
-    pub fn respond(&mut self, mut dv: Vec<Vector3<f64>>) {
-        let Some((op, work)) = &mut self.system else {
-            self.v.iter_mut().zip(&dv).for_each(|(v, d)| *v += d);
-            return;
-        };
-        let (stats, impulses) = nonpressure::pressure_response(op, &mut dv, None, work);
-        self.response.iterations += stats.iterations;
-        self.response.residual = stats.residual;
-        self.v.iter_mut().zip(&dv).for_each(|(v, d)| *v += d);
-        for ((_, body, point), j) in self.constraints.iter().zip(&impulses) {
-            let bi = *body as usize;
-            let f = -j / self.dt;
-            self.body_forces[bi].0 += f;
-            self.body_forces[bi].1 += (point - self.boundary.bodies[bi].state.position).cross(&f);
-        }
     }
 }
 

@@ -389,11 +389,12 @@ impl Trial {
         let mut memory = self.layer.memory.clone();
         let mut records = Vec::new();
         let (bodies, fp) = (&self.friction_bodies, &self.cfg.friction);
-        let sticks =
-            if fp.coupled { memory.sticks(self.sim.particles().n_fluid, self.sim.boundary(), fp) } else { Vec::new() };
+        let sticks = memory.sticks(self.sim.particles().n_fluid, self.sim.boundary());
+        let law = ContactMemory::law(&sticks, bodies, fp);
         let out = &mut records;
         let mem = &mut memory;
-        if let Err(e) = self.sim.step_with_sticks(&sticks, move |stage| *out = mem.apply(stage, bodies, fp)) {
+        let friction = fp.coupled.then_some(&law);
+        if let Err(e) = self.sim.step_with_friction(friction, move |stage| *out = mem.apply(stage, bodies, fp)) {
             self.layer.controller = saved_ctrl;
             return Err(e);
         }

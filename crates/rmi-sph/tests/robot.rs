@@ -228,3 +228,39 @@ fn gripped_sponge_keeps_the_pores_next_to_the_pads_full() {
     let (before, after) = out[1];
     assert!(after < 0.5 * before, "uncoupled friction kept the pad layers at {after}");
 }
+
+/// Coulomb friction inside the coupled solve: the friction on a saturated sponge never
+/// exceeds mu_st times the normal load of the skeleton's contacts, so a sponge heavier than
+/// what the pads' grip can carry slips out, and one within it is lifted. (Held sticks
+/// exert whatever force their constraint needs; the step lets those beyond the cone slide.)
+#[test]
+fn saturated_sponge_friction_stays_in_the_coulomb_cone() {
+    let mut base = short(1.0, 1.0);
+    base.porosity = 0.7;
+    base.particle_radius = 0.008;
+    base.dt = 0.002;
+    let probe = Trial::new(base.clone(), Some(2)).unwrap();
+    let weight = 9.81 * probe.simulation().particles().mass.iter().sum::<f64>();
+    let mu = base.friction.mu_static;
+    for (hold, should_lift) in [(0.6 * weight / (2.0 * mu), false), (2.0 * weight / (2.0 * mu), true)] {
+        let mut c = base.clone();
+        c.hold_force = hold;
+        c.squeeze_force = hold;
+        let mut t = Trial::new(c, Some(2)).unwrap();
+        let mut worst: f64 = 0.0;
+        while !t.finished() {
+            t.step().unwrap();
+            let o = t.observation();
+            let g = t.gripper();
+            let normal: f64 = [g.left, g.right].iter().map(|&b| t.simulation().skeleton_contact_force(b).x.abs()).sum();
+            let friction = nalgebra::Vector3::from(o.f_fric).norm();
+            if normal > 0.0 {
+                worst = worst.max(friction / normal);
+            }
+        }
+        let o = t.outcome(0.0);
+        println!("sponge weight {weight:.2} N, hold {hold:.2} N: lift {} ({:?}); largest friction / skeleton normal load {worst:.3}", o.lift_success, o.failure);
+        assert!(worst <= mu + 1e-9, "friction {worst} times the normal load, above mu_st = {mu}");
+        assert_eq!(o.lift_success, should_lift, "{o:?}");
+    }
+}
