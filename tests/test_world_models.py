@@ -19,6 +19,7 @@ from rmi_learn.models.common import (
     WATER,
     ShuffledActions,
     assemble_obs,
+    change_scale,
     obs_keep,
     shuffled_pairing,
 )
@@ -560,6 +561,79 @@ def test_cli_debug_train_eval_and_load(synthetic_dataset_dir: Path, tmp_path: Pa
     # Every record names its dataset and split seed, which benches/wm_splits.py labels by.
     results = json.loads((out / "results.json").read_text())
     assert {(r["data"], r["split_seed"]) for r in results} == {(data, 0)}
+
+
+def test_change_scale_is_the_rms_of_the_forecast_change_where_both_ends_are_valid() -> None:
+    class Windows:
+        def __init__(self, b: dict[str, torch.Tensor]) -> None:
+            self.b = b
+
+        def __len__(self) -> int:
+            return int(self.b["hist"].shape[0])
+
+        def batch(self, idx: Any) -> dict[str, torch.Tensor]:
+            return {k: v[torch.as_tensor(idx)] for k, v in self.b.items()}
+
+    b = random_batch(n=5, h=8, seed=3)
+    z0 = b["hist"][:, -1, list(CONTINUOUS_INDEX)]
+    b["target_mask"][0, :, 1] = 0.0  # window 0 has no target for channel 1 ...
+    b["target"][0, :, 1] = 1e6  # ... and garbage there
+    b["hist_mask"][1, -1, CONTINUOUS_INDEX[2]] = 0.0  # window 1 has no latest value of channel 2
+    b["target"][1, :, 2] = 1e6
+    b["target"][:, :, 3] = z0[:, 3:4]  # channel 3 never moves: the floor
+    got = change_scale(Windows(b), batch_size=2, floor=1e-3)
+    d = b["target"] - z0.unsqueeze(1)
+    for ch, rows in ((0, slice(None)), (1, slice(1, None)), (2, [0, 2, 3, 4])):
+        expect = d[rows, :, ch].double().pow(2).mean().sqrt()
+        assert got[ch].item() == pytest.approx(float(expect), rel=1e-6)
+    assert got[3].item() == pytest.approx(1e-3)
+
+
+def test_channel_scale_measures_each_error_against_its_channel() -> None:
+    batch = random_batch()
+    zero = {"contact_logit": torch.zeros(N, H), "friction_logit": torch.zeros(N, H, 4)}
+    z = batch["target"].clone()
+    z[..., WATER] += 0.01  # a small error on a channel that moves 0.02 ...
+    scale = torch.ones(18)
+    scale[WATER] = 0.02
+    plain, _ = wm_loss(dict(zero, z=z), batch, classify=False)
+    scaled, _ = wm_loss(dict(zero, z=z), batch, classify=False, channel_scale=scale)
+    # ... is half its typical change: Huber 0.125 on one channel of 18, not 5e-5.
+    assert plain.item() == pytest.approx(0.5 * 0.01**2 / 18, rel=1e-4)
+    assert scaled.item() == pytest.approx(0.125 / 18, rel=1e-4)
+    # Beyond the threshold the scaled error is weighed linearly: 0.06 is 3 changes.
+    z[..., WATER] = batch["target"][..., WATER] + 0.06
+    far, _ = wm_loss(dict(zero, z=z), batch, classify=False, channel_scale=scale)
+    assert far.item() == pytest.approx((3.0 - 0.5) / 18, rel=1e-4)
+
+
+def test_loss_scale_change_is_the_mlp_default_stores_the_scale_and_is_fixed_on_resume(
+    synthetic_dataset_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from rmi_learn.commands.train_wm import DEBUG_TRAIN_WINDOWS, _subset
+    from rmi_learn.dataset import load_dataset
+
+    out = tmp_path / "mlp"
+    base = ("train-wm", "--model", "ac-mlp", "--data", str(synthetic_dataset_dir))
+    base += ("--out", str(out), "--debug", "--no-progress")
+    assert _cli(*base) == 0
+    extra = json.loads((out / "config.json").read_text())["extra"]
+    assert extra["loss_scale"] == "change"
+    ws = _subset(load_dataset(synthetic_dataset_dir).windows("train"), DEBUG_TRAIN_WINDOWS, 0)
+    np.testing.assert_allclose(extra["channel_scale"], change_scale(ws).numpy(), rtol=1e-6)
+    capsys.readouterr()
+    assert _cli(*base, "--resume", "--loss-scale", "state") == 2
+    assert "loss_scale was 'change'" in capsys.readouterr().err
+    assert _cli(*base, "--resume") == 0
+    with pytest.raises(SystemExit) as bad:
+        _cli(*base, "--loss-scale", "level")
+    assert bad.value.code == 2 and "--loss-scale" in capsys.readouterr().err
+    # The Transformer keeps the paper's loss (with its water weight 8) unless told otherwise.
+    wt = tmp_path / "wt"
+    args = ("train-wm", "--model", "transformer", "--data", str(synthetic_dataset_dir))
+    assert _cli(*args, "--out", str(wt), "--debug", "--no-progress", "--epochs", "1") == 0
+    extra = json.loads((wt / "config.json").read_text())["extra"]
+    assert extra["loss_scale"] == "state" and "channel_scale" not in extra
 
 
 def test_huber_delta_reaches_the_loss_and_is_fixed_on_resume(

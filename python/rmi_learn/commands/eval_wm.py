@@ -206,12 +206,13 @@ def evaluate_runs(
 
 def _setting(cfg: dict[str, Any]) -> dict[str, Any]:
     """What a run's config says of its model and training, less the seed (and the dataset
-    path: the standardisation statistics are checked against the dataset instead)."""
+    path: the standardisation statistics are checked against the dataset instead; and the
+    loss's channel scale, measured on the training windows, which a debug run draws by seed)."""
     from rmi_learn.commands.train_wm import RESUME_LEGACY
     from rmi_learn.training import RESUME_FREE
 
     train = {k: v for k, v in (cfg.get("train") or {}).items() if k not in RESUME_FREE}
     train.pop("seed", None)
     extra = {**RESUME_LEGACY, **(cfg.get("extra") or {})}
-    extra = {k: v for k, v in extra.items() if k not in ("seed", "data")}
+    extra = {k: v for k, v in extra.items() if k not in ("seed", "data", "channel_scale")}
     return {"model": cfg.get("model"), "train": train, "extra": extra}

@@ -3,7 +3,8 @@ AC-MLP-WM or the causal Transformer W_T) on a built dataset.
 
     rmi train-wm --model ac-gru --data DATASET --out RUN [--size 8|10|12]
                  [--state-groups LS|LS+G|LS+G+C|ALL] [--shuffle-actions] [--epochs N]
-                 [--water-weight W] [--huber-delta D] [--seed S] [--resume] [--debug]
+                 [--water-weight W] [--huber-delta D] [--loss-scale state|change]
+                 [--seed S] [--resume] [--debug]
 
 The run directory gets config.json (model architecture, training settings, data path, size,
 state groups, shuffle flag and the dataset's standardisation statistics), model.safetensors
@@ -27,9 +28,24 @@ GROUP_CHOICES = ("LS", "LS+G", "LS+G+C", "ALL")
 
 #: Per-model optimisation defaults (paper Sec. IV, supplement S3).
 DEFAULTS: dict[str, dict[str, Any]] = {
-    "state-gru": {"lr": 1e-3, "optimizer": "adam", "select": "val_water_mae_g@64"},
-    "ac-gru": {"lr": 1e-3, "optimizer": "adam", "select": "val_water_mae_g@64"},
-    "ac-mlp": {"lr": 1e-3, "optimizer": "adam", "select": "val_water_mae_g@64"},
+    "state-gru": {
+        "lr": 1e-3,
+        "optimizer": "adam",
+        "select": "val_water_mae_g@64",
+        "loss_scale": "change",
+    },
+    "ac-gru": {
+        "lr": 1e-3,
+        "optimizer": "adam",
+        "select": "val_water_mae_g@64",
+        "loss_scale": "change",
+    },
+    "ac-mlp": {
+        "lr": 1e-3,
+        "optimizer": "adam",
+        "select": "val_water_mae_g@64",
+        "loss_scale": "change",
+    },
     "transformer": {
         "lr": 3e-4,
         "optimizer": "adamw",
@@ -47,11 +63,14 @@ RESUME_FIXED = (
     "tf_epochs",
     "water_weight",
     "huber_delta",
+    "loss_scale",
 )
 #: Huber threshold of the loss in standardised units (torch's default).
 HUBER_DELTA = 1.0
 #: Values of those settings in runs written before they were recorded.
-RESUME_LEGACY: dict[str, Any] = {"huber_delta": HUBER_DELTA}
+RESUME_LEGACY: dict[str, Any] = {"huber_delta": HUBER_DELTA, "loss_scale": "state"}
+#: How the continuous channels' errors are scaled in the loss (see ``--loss-scale``).
+LOSS_SCALES = ("state", "change")
 #: Debug mode: windows kept from each split, batch size, teacher-forcing decay epochs.
 DEBUG_TRAIN_WINDOWS = 256
 DEBUG_VAL_WINDOWS = 32
@@ -110,6 +129,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="Huber loss threshold in standardised units (default 1, torch's): errors "
         "above it are weighed linearly, below it quadratically",
     )
+    parser.add_argument(
+        "--loss-scale",
+        choices=LOSS_SCALES,
+        default=None,
+        help="state (the paper's loss; the Transformer's default): errors in units of each "
+        "channel's standardised level; change (the GRU and MLP models' default): in units "
+        "of each channel's RMS change over the horizon in the training windows, so that "
+        "slowly moving channels such as retained water count",
+    )
     parser.add_argument("--batch-size", type=count(1), default=128)
     parser.add_argument(
         "--steps-per-epoch",
@@ -161,6 +189,7 @@ def run(args: argparse.Namespace) -> int:
             steps_per_epoch=args.steps_per_epoch,
             water_weight=args.water_weight,
             huber_delta=args.huber_delta,
+            loss_scale=args.loss_scale,
             lr=args.lr,
             val_windows=args.val_windows,
             seed=args.seed,
@@ -216,6 +245,7 @@ def train(
     steps_per_epoch: int | None = None,
     water_weight: float | None = None,
     huber_delta: float = HUBER_DELTA,
+    loss_scale: str | None = None,
     lr: float | None = None,
     val_windows: int | None = 4096,
     seed: int = 0,
@@ -236,19 +266,25 @@ def train(
     0.16/0.32/0.64/1.28 s). Linear-ARX is fitted in closed form; the Baseline only
     writes its config. ``model_args`` overrides constructor arguments (e.g. ``hidden``,
     ``d_model``); an unknown name raises TypeError. ``huber_delta`` is the Huber threshold
-    in standardised units (default 1). ``resume`` refuses settings of :data:`RESUME_FIXED`
-    that differ from the first call's.
+    in standardised units (default 1). ``loss_scale="change"`` (default for the GRU and
+    MLP models; ``"state"``, the paper's, for the Transformer) measures each continuous
+    channel's error in units of its RMS change over the horizon in the training windows
+    (:func:`rmi_learn.models.common.change_scale`, stored in config.json as
+    ``channel_scale``) before the Huber loss and the water weight. ``resume`` refuses
+    settings of :data:`RESUME_FIXED` that differ from the first call's.
     """
     import torch
 
     from rmi_learn.dataset import load_dataset
     from rmi_learn.models import build
-    from rmi_learn.models.common import N_Z, WATER, ShuffledActions, wm_loss
+    from rmi_learn.models.common import N_Z, WATER, ShuffledActions, change_scale, wm_loss
     from rmi_learn.training import TrainConfig, Trainer, count_parameters, seed_everything
     from rmi_learn.wm_eval import evaluate_rollouts
 
     if model not in MODEL_CHOICES:
         raise ValueError(f"unknown model {model!r}")
+    if loss_scale is not None and loss_scale not in LOSS_SCALES:
+        raise ValueError(f"loss_scale must be one of {list(LOSS_SCALES)}, got {loss_scale!r}")
     if model in ("baseline", "arx") and state_groups != "ALL":
         raise ValueError(f"--state-groups applies to learned models, not {model}")
     out = Path(out)
@@ -302,8 +338,17 @@ def train(
         water_weight = float(d.get("water_weight", 1.0))
     extra["water_weight"] = water_weight
     extra["huber_delta"] = huber_delta
+    if loss_scale is None:
+        loss_scale = str(d.get("loss_scale", "state"))
+    extra["loss_scale"] = loss_scale
     cw = torch.ones(N_Z)
     cw[WATER] = water_weight
+    scale = None
+    if loss_scale == "change":
+        # Targets and histories do not depend on the pairing of chunks, so shuffled and
+        # debug subsets give the scale of the windows they train on.
+        scale = change_scale(train_ws)
+        extra["channel_scale"] = [float(v) for v in scale]
     cfg = TrainConfig(
         epochs=epochs,
         batch_size=batch_size,
@@ -339,6 +384,7 @@ def train(
             o,
             batch,
             channel_weight=cw.to(o["z"].device),
+            channel_scale=None if scale is None else scale.to(o["z"].device),
             z_keep=m.z_keep,
             classify=m.classify,
             huber_delta=huber_delta,
