@@ -47,6 +47,12 @@ impl Default for FrictionParams {
 }
 
 impl FrictionParams {
+    /// This law on `bodies` with these anchors, for
+    /// [`crate::Simulation::step_with_friction`].
+    pub fn law<'a>(&self, anchors: &'a [Stick], bodies: &'a [bool]) -> Friction<'a> {
+        Friction { bodies, mu_static: self.mu_static, mu_kinetic: self.mu_kinetic, gain: self.beta, anchors }
+    }
+
     /// Validates every field; `p` is the dotted path used in error messages.
     pub fn validate(&self, p: &str) -> crate::Result<()> {
         use crate::config::check_range as range;
@@ -161,12 +167,6 @@ impl ContactMemory {
             out[first..].sort_by_key(|x| x.body);
         }
         out
-    }
-
-    /// The friction law of `p` on `bodies` with these anchors, for
-    /// [`crate::Simulation::step_with_friction`].
-    pub fn law<'a>(anchors: &'a [Stick], bodies: &'a [bool], p: &FrictionParams) -> Friction<'a> {
-        Friction { bodies, mu_static: p.mu_static, mu_kinetic: p.mu_kinetic, gain: p.beta, anchors }
     }
 
     /// Applies friction to every skeleton contact with a body in `bodies` (and a positive

@@ -389,8 +389,10 @@ impl Trial {
         let mut memory = self.layer.memory.clone();
         let mut records = Vec::new();
         let (bodies, fp) = (&self.friction_bodies, &self.cfg.friction);
-        let sticks = memory.sticks(self.sim.particles().n_fluid, self.sim.boundary());
-        let law = ContactMemory::law(&sticks, bodies, fp);
+        // Uncoupled friction needs no anchors in the solves: only the hook applies it.
+        let sticks =
+            if fp.coupled { memory.sticks(self.sim.particles().n_fluid, self.sim.boundary()) } else { Vec::new() };
+        let law = fp.law(&sticks, bodies);
         let out = &mut records;
         let mem = &mut memory;
         let friction = fp.coupled.then_some(&law);

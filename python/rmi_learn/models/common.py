@@ -193,8 +193,8 @@ def wm_loss(
     plain mean over invalid entries). With ``channel_scale`` (18,), prediction and target of
     channel d are divided by ``channel_scale[d]`` before the Huber error, so that each error
     is measured against how far that channel moves (see :func:`change_scale`). The
-    classification losses are discounted the same way
-    and divided by N * sum_tau gamma^(tau-1).
+    classification losses are discounted the same way and divided by N * sum_tau
+    gamma^(tau-1).
     """
     z = out["z"]
     n, h, d = z.shape
