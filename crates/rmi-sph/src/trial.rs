@@ -389,14 +389,12 @@ impl Trial {
         let mut memory = self.layer.memory.clone();
         let mut records = Vec::new();
         let (bodies, fp) = (&self.friction_bodies, &self.cfg.friction);
-        // Uncoupled friction needs no anchors in the solves: only the hook applies it.
-        let sticks =
-            if fp.coupled { memory.sticks(self.sim.particles().n_fluid, self.sim.boundary()) } else { Vec::new() };
-        let law = fp.law(&sticks, bodies);
+        // Uncoupled friction is applied by the hook alone: no law and no anchors in the solves.
+        let sticks = fp.coupled.then(|| memory.sticks(self.sim.particles().n_fluid, self.sim.boundary()));
+        let law = sticks.as_deref().map(|s| fp.law(s, bodies));
         let out = &mut records;
         let mem = &mut memory;
-        let friction = fp.coupled.then_some(&law);
-        if let Err(e) = self.sim.step_with_friction(friction, move |stage| *out = mem.apply(stage, bodies, fp)) {
+        if let Err(e) = self.sim.step_with_friction(law.as_ref(), move |stage| *out = mem.apply(stage, bodies, fp)) {
             self.layer.controller = saved_ctrl;
             return Err(e);
         }
