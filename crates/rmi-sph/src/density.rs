@@ -21,6 +21,13 @@ pub struct DensityFields {
     /// Fluid: skeleton coverage sum_s V W (about 1 inside a sponge, 1/2 on its surface).
     /// Solid: 0.
     pub skeleton_cover: Vec<f64>,
+    /// Fluid: `sum_b V grad W_ab` over the fluid neighbours (1/m). Solid: 0.
+    pub fluid_grad: Vec<Vector3<f64>>,
+    /// Fluid: `sum_k V_k grad W_ak` over the boundary neighbours (1/m). Solid: 0.
+    pub boundary_grad: Vec<Vector3<f64>>,
+    /// Fluid: `sum_k V_k v_k . grad W_ak` over the boundary neighbours with the bodies'
+    /// velocities of this step (1/s), the walls' part of the advected density. Solid: 0.
+    pub boundary_flux: Vec<f64>,
 }
 
 /// Computes densities, alpha, local porosity and saturation for every dynamic particle.
@@ -29,6 +36,10 @@ pub fn compute(c: &Ctx, out: &mut DensityFields) {
     for field in [&mut out.rho_ratio, &mut out.alpha, &mut out.porosity, &mut out.saturation, &mut out.skeleton_cover] {
         field.resize(n, 0.0);
     }
+    for field in [&mut out.fluid_grad, &mut out.boundary_grad] {
+        field.resize(n, Vector3::zeros());
+    }
+    out.boundary_flux.resize(n, 0.0);
     // Each field written in place by its chunk's thread (no staging array, no serial unpack).
     let hc = crate::par::HOT_CHUNK;
     (
@@ -37,25 +48,42 @@ pub fn compute(c: &Ctx, out: &mut DensityFields) {
         out.porosity.par_chunks_mut(hc),
         out.saturation.par_chunks_mut(hc),
         out.skeleton_cover.par_chunks_mut(hc),
+        out.fluid_grad.par_chunks_mut(hc),
+        out.boundary_grad.par_chunks_mut(hc),
+        out.boundary_flux.par_chunks_mut(hc),
     )
         .into_par_iter()
         .enumerate()
-        .for_each(|(ci, (rho, alpha, phi, sat, cover))| {
+        .for_each(|(ci, (rho, alpha, phi, sat, cover, fg, bg, bf))| {
             crate::cpu::hot(
                 #[inline(always)]
                 || {
                     for k in 0..rho.len() {
-                        (rho[k], alpha[k], phi[k], sat[k], cover[k]) = particle(c, ci * hc + k);
+                        let f = particle(c, ci * hc + k);
+                        (rho[k], alpha[k], phi[k], sat[k], cover[k]) =
+                            (f.rho, f.alpha, f.porosity, f.saturation, f.cover);
+                        (fg[k], bg[k], bf[k]) = (f.fluid_grad, f.boundary_grad, f.boundary_flux);
                     }
                 },
             )
         });
 }
 
-/// Density ratio, alpha, porosity, saturation and skeleton coverage of particle `a` (the
-/// fields of [`DensityFields`], in that order).
+/// One particle's entries of [`DensityFields`].
+struct Fields {
+    rho: f64,
+    alpha: f64,
+    porosity: f64,
+    saturation: f64,
+    cover: f64,
+    fluid_grad: Vector3<f64>,
+    boundary_grad: Vector3<f64>,
+    boundary_flux: f64,
+}
+
+/// The fields of particle `a`.
 #[inline(always)]
-fn particle(c: &Ctx, a: usize) -> (f64, f64, f64, f64, f64) {
+fn particle(c: &Ctx, a: usize) -> Fields {
     let nf = c.p.n_fluid;
     let nb = c.nb.of(a);
     let nbb = c.nbb.of(a);
@@ -82,6 +110,7 @@ fn particle(c: &Ctx, a: usize) -> (f64, f64, f64, f64, f64) {
         }
         first = nb.n_fluid;
     }
+    let fluid_grad = grad_sum;
     for k in first..nb.j.len() {
         let b = nb.j[k] as usize;
         let f = c.volume_factor(a, b);
@@ -101,14 +130,23 @@ fn particle(c: &Ctx, a: usize) -> (f64, f64, f64, f64, f64) {
         }
     }
     let mut bcover = 0.0;
+    // Kept here, where the walk over the walls happens anyway, so that the pressure solve's
+    // advected density needs no walk of its own: `sum V_k (v_a - v_k) . grad W_ak` is
+    // `v_a . boundary_grad - boundary_flux`.
+    let mut boundary_grad = Vector3::zeros();
+    let mut boundary_flux = 0.0;
     // Bodies act on the skeleton only through contact constraints (contact.rs): boundary
     // density under a compressible skeleton would make it float on pressure instead.
     let nbb_len = if fluid { nbb.j.len() } else { 0 };
     for k in 0..nbb_len {
-        let vk = c.bnd.volume[nbb.j[k] as usize];
+        let kk = nbb.j[k] as usize;
+        let vk = c.bnd.volume[kk];
         dens += vk * nbb.w[k];
         bcover += vk * nbb.w[k];
-        grad_sum += vk * nbb.g(k);
+        let gk = vk * nbb.g(k);
+        grad_sum += gk;
+        boundary_grad += gk;
+        boundary_flux += c.bnd.v[kk].dot(&gk);
     }
     let denom = grad_sum.norm_squared() + grad_sq;
     let alpha = if denom > 1e-5 { 1.0 / denom } else { 0.0 };
@@ -123,5 +161,5 @@ fn particle(c: &Ctx, a: usize) -> (f64, f64, f64, f64, f64) {
         let cur_phi = (1.0 - (1.0 - phi) * same_shepard / cover0).max(MIN_LOCAL_POROSITY);
         (cur_phi, (fluid_sum / (cover0 * cur_phi)).min(1.0))
     };
-    (dens, alpha, porosity, saturation, skeleton_cover)
+    Fields { rho: dens, alpha, porosity, saturation, cover: skeleton_cover, fluid_grad, boundary_grad, boundary_flux }
 }

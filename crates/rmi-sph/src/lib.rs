@@ -47,6 +47,7 @@ pub mod kernel;
 pub mod neighbours;
 pub mod nonpressure;
 pub mod observe;
+pub mod pairsum;
 pub mod par;
 pub mod particles;
 pub mod presets;

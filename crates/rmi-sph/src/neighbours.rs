@@ -8,9 +8,9 @@
 //! A pair keeps its kernel gradient as the scalar factor `g(r)` of `grad W = g(r) (x_a - x_b)`
 //! (8 bytes, not the 24 of the vector), with the lists' own copy of the positions they were
 //! built at; [`Nb::g`] multiplies it back out with the same operations the build used, so
-//! the gradient has the bits it would have had stored. The solver's pair passes are limited
-//! by memory traffic, and the gathered positions of nearby (cell-sorted) neighbours mostly
-//! come from cache.
+//! the gradient has the bits it would have had stored. The pressure iterations read only the
+//! factor for their water pairs (the position-free sums of [`crate::pairsum`], over
+//! [`NeighbourLists::target_positions`] shifted once per step).
 
 use crate::grid::Grid;
 use crate::kernel::CubicKernel;
@@ -56,6 +56,12 @@ impl Nb<'_> {
         d * gf
     }
 
+    /// The pairs' gradient factors `g(r)` (1/m^5), in the order of [`Nb::j`].
+    #[inline(always)]
+    pub fn gf(&self) -> &[f64] {
+        self.gf
+    }
+
     /// `x_a - x_b` of pair `k` at the build positions (m) and the pair's gradient factor
     /// (1/m^5): `g(k)` is their product. For passes that need the distance vector too,
     /// so that they read each neighbour's position once.
@@ -90,6 +96,15 @@ impl NeighbourLists {
         let e = c.start[l + 1] as usize;
         let xt = if self.xt.is_empty() { &self.xq } else { &self.xt };
         Nb { j: &c.j[s..e], w: &c.w[s..e], n_fluid: (c.split[l] as usize) - s, gf: &c.gf[s..e], xa: self.xq[a], xt }
+    }
+
+    /// The positions the targets had when the lists were built (m), by target index.
+    pub fn target_positions(&self) -> &[Vector3<f64>] {
+        if self.xt.is_empty() {
+            &self.xq
+        } else {
+            &self.xt
+        }
     }
 
     /// Chunk index and the range of particle `a`'s pairs inside that chunk's arrays.

@@ -2,10 +2,15 @@
 //! physics.md sec. 2 step 10, with per-material convergence on the mean compression.
 //!
 //! The unknown is kappa = p / rho (m^2/s^2, "pressure over density"); the pressure
-//! acceleration of a fluid pair is `-V (kappa_a + kappa_b) grad W`.
+//! acceleration of a fluid pair is `-V (kappa_a + kappa_b) grad W`. The water-water part of
+//! every pair sum (most pairs of any scene) is evaluated in the position-free form of
+//! [`crate::pairsum`]: each pass writes one 32-byte record per particle that the next pass
+//! gathers, so a pair costs one gather and a four-wide multiply-add. The skeleton's pairs keep
+//! the direct form.
 
 use crate::ctx::Ctx;
 use crate::density::DensityFields;
+use crate::pairsum::{self, Frame, Rec4};
 use crate::par;
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -43,10 +48,24 @@ pub struct PressureStats {
 #[derive(Clone, Debug, Default)]
 pub struct PressureWork {
     source: Vec<f64>,
-    /// Per particle `sum_k V_k grad W_ak` over boundary neighbours (constant within a step).
-    gb: Vec<Vector3<f64>>,
     ap: Vec<Vector3<f64>>,
     err: Vec<f64>,
+    /// Per particle `[kappa x, kappa]` (the acceleration pass's records).
+    rk: Vec<Rec4>,
+    /// The lists' positions relative to their centre, for the record sums of [`pairsum`].
+    frame: Frame,
+    /// Per particle `[q, q . x]` of the vector field being differentiated (the predicted
+    /// velocity in the source pass, the pressure acceleration in the iterations).
+    rq: Vec<Rec4>,
+}
+
+/// What the water-pair sums read in [`pairsum`] form: the lists' shifted positions, the
+/// neighbours' records and `sum_b V grad W_ab` over the water neighbours.
+#[derive(Clone, Copy)]
+struct WaterPairs<'a> {
+    x: &'a [Vector3<f64>],
+    rec: &'a [Rec4],
+    grad: &'a [Vector3<f64>],
 }
 
 /// The volume factors of physics.md sec. 1 that the pressure passes need, per particle, so
@@ -84,17 +103,26 @@ impl Factors {
     }
 }
 
-/// Pressure acceleration of particle `a` for the current kappa.
+/// Pressure acceleration of particle `a` for the current kappa; `w.rec` holds the records
+/// `[kappa x, kappa]` of the same kappa.
 #[inline(always)]
-fn accel(c: &Ctx, fs: &Factors, a: usize, kappa: &[f64], rho0: &[f64], gb: &[Vector3<f64>]) -> Vector3<f64> {
+fn accel(
+    c: &Ctx,
+    fs: &Factors,
+    a: usize,
+    kappa: &[f64],
+    rho0: &[f64],
+    gb: &[Vector3<f64>],
+    w: WaterPairs,
+) -> Vector3<f64> {
     let nb = c.nb.of(a);
     let ka = kappa[a];
     let v = c.vol;
     let mut acc = Vector3::zeros();
     if c.p.is_fluid(a) {
-        for k in 0..nb.n_fluid {
-            acc -= (v * (ka + kappa[nb.j[k] as usize])) * nb.g(k);
-        }
+        // -sum_b V (kappa_a + kappa_b) grad W_ab over the water pairs (see `pairsum`).
+        let t = pairsum::weighted(&nb.j[..nb.n_fluid], &nb.gf()[..nb.n_fluid], w.rec);
+        acc = -(ka * w.grad[a] + v * (w.x[a] * t.0[3] - t.xyz()));
         for k in nb.n_fluid..nb.j.len() {
             let b = nb.j[k] as usize;
             acc -= (fs.from_solid[b] * v * ka) * nb.g(k);
@@ -115,17 +143,17 @@ fn accel(c: &Ctx, fs: &Factors, a: usize, kappa: &[f64], rho0: &[f64], gb: &[Vec
     acc - ka * gb[a]
 }
 
-/// Divergence-like sum `sum_b f V (q_a - q_b) . grad W_ab` over dynamic neighbours.
+/// Divergence-like sum `sum_b f V (q_a - q_b) . grad W_ab` over dynamic neighbours; `w.rec`
+/// holds the records `[q, q . x]` of the same `q`.
 #[inline(always)]
-fn div(c: &Ctx, fs: &Factors, a: usize, q: &[Vector3<f64>]) -> f64 {
+fn div(c: &Ctx, fs: &Factors, a: usize, q: &[Vector3<f64>], w: WaterPairs) -> f64 {
     let nb = c.nb.of(a);
     let v = c.vol;
     let qa = q[a];
     let mut s = 0.0;
     if c.p.is_fluid(a) {
-        for k in 0..nb.n_fluid {
-            s += v * (qa - q[nb.j[k] as usize]).dot(&nb.g(k));
-        }
+        let t = pairsum::weighted(&nb.j[..nb.n_fluid], &nb.gf()[..nb.n_fluid], w.rec);
+        s = qa.dot(&w.grad[a]) - v * (w.x[a].dot(&t.xyz()) - t.0[3]);
         for k in nb.n_fluid..nb.j.len() {
             let b = nb.j[k] as usize;
             s += fs.from_solid[b] * v * (qa - q[b]).dot(&nb.g(k));
@@ -137,27 +165,6 @@ fn div(c: &Ctx, fs: &Factors, a: usize, q: &[Vector3<f64>]) -> f64 {
         }
     }
     s
-}
-
-/// The boundary sums of particle `a`, one walk over its wall neighbours: `sum_k V_k grad W_ak`
-/// (1/m, constant within a step) and the boundary part of the velocity divergence,
-/// `sum_k V_k (v_a - v_k) . grad W_ak` (1/s). Both zero for the skeleton: only water feels
-/// boundary pressure, the skeleton meets bodies through contacts.
-#[inline(always)]
-fn boundary_sums(c: &Ctx, a: usize, va: &Vector3<f64>) -> (Vector3<f64>, f64) {
-    let mut gb = Vector3::zeros();
-    let mut s = 0.0;
-    if !c.p.is_fluid(a) {
-        return (gb, s);
-    }
-    let nbb = c.nbb.of(a);
-    for k in 0..nbb.j.len() {
-        let kk = nbb.j[k] as usize;
-        let g = nbb.g(k);
-        gb += c.bnd.volume[kk] * g;
-        s += c.bnd.volume[kk] * (va - c.bnd.v[kk]).dot(&g);
-    }
-    (gb, s)
 }
 
 /// Runs the pressure solve on the predicted velocities `v` (updated in place).
@@ -180,24 +187,36 @@ pub fn solve(
     let dt = c.dt;
     let dt2 = dt * dt;
     work.source.resize(n, 0.0);
-    work.gb.resize(n, Vector3::zeros());
     work.ap.resize(n, Vector3::zeros());
     work.err.resize(n, 0.0);
     let fs = &Factors::new(c);
     kappa.resize(n, 0.0);
+    // Per particle `sum_k V_k grad W_ak` over boundary neighbours (1/m; zero for the skeleton:
+    // only water feels boundary pressure, the skeleton meets bodies through contacts).
+    let gb = &dens.boundary_grad;
+    let xl = c.nb.target_positions();
+    assert_eq!(xl.len(), n, "the pressure passes need lists over the dynamic particles");
+    work.frame.rebuild(xl);
+    let x = &work.frame.x;
+    work.rk.resize(n, Rec4::default());
+    work.rq.resize(n, Rec4::default());
+    let vv: &[Vector3<f64>] = v;
+    par::for_each_hot(
+        &mut work.rq,
+        #[inline(always)]
+        |a, r| *r = Rec4::vector_moment(&vv[a], &x[a]),
+    );
     {
-        let vv: &[Vector3<f64>] = v;
-        let source = &mut work.source;
+        let w = WaterPairs { x, rec: &work.rq, grad: &dens.fluid_grad };
         let kdt2: &[f64] = kappa_dt2;
-        par::for_each_hot3(
-            source,
+        par::for_each_hot2(
+            &mut work.source,
             kappa,
-            &mut work.gb,
             #[inline(always)]
-            |a, s, ka, gb| {
-                let (g, bdiv) = boundary_sums(c, a, &vv[a]);
-                *gb = g;
-                let rho_adv = dens.rho_ratio[a] + dt * (div(c, fs, a, vv) + bdiv);
+            |a, s, ka| {
+                // The walls' part of the velocity divergence, sum V_k (v_a - v_k) . grad W_ak.
+                let bdiv = vv[a].dot(&gb[a]) - dens.boundary_flux[a];
+                let rho_adv = dens.rho_ratio[a] + dt * (div(c, fs, a, vv, w) + bdiv);
                 *s = 1.0 - rho_adv;
                 *ka = if settings.warm_start && rho_adv > 1.0 {
                     settings.warm_start_factor * kdt2[a].min(2.5e-4) / dt2
@@ -207,6 +226,14 @@ pub fn solve(
             },
         );
     }
+    {
+        let kap: &[f64] = kappa;
+        par::for_each_hot(
+            &mut work.rk,
+            #[inline(always)]
+            |a, r| *r = Rec4::scaled_position(kap[a], &x[a]),
+        );
+    }
     let counts: Vec<f64> =
         (0..n_materials).map(|m| c.p.material.iter().filter(|&&x| x as usize == m).count().max(1) as f64).collect();
     let mut stats = PressureStats { iterations: 0, error: vec![0.0; n_materials] };
@@ -214,27 +241,33 @@ pub fn solve(
     loop {
         {
             let kap: &[f64] = kappa;
-            let gb = &work.gb;
-            par::for_each_hot(
+            let w = WaterPairs { x, rec: &work.rk, grad: &dens.fluid_grad };
+            par::for_each_hot2(
                 &mut work.ap,
+                &mut work.rq,
                 #[inline(always)]
-                |a, ap| *ap = accel(c, fs, a, kap, rho0, gb),
+                |a, ap, r| {
+                    *ap = accel(c, fs, a, kap, rho0, gb, w);
+                    *r = Rec4::vector_moment(ap, &x[a]);
+                },
             );
         }
         {
             let ap: &[Vector3<f64>] = &work.ap;
             let source = &work.source;
-            let gb = &work.gb;
-            par::for_each_hot2(
+            let w = WaterPairs { x, rec: &work.rq, grad: &dens.fluid_grad };
+            par::for_each_hot3(
                 kappa,
                 &mut work.err,
+                &mut work.rk,
                 #[inline(always)]
-                |a, ka, e| {
-                    let akappa = dt2 * (div(c, fs, a, ap) + ap[a].dot(&gb[a]));
+                |a, ka, e, r| {
+                    let akappa = dt2 * (div(c, fs, a, ap, w) + ap[a].dot(&gb[a]));
                     let residual = source[a] - akappa;
                     *e = (-residual).max(0.0);
                     let alpha = dens.alpha[a];
                     *ka = if alpha > 0.0 { (*ka - settings.omega * residual * alpha / dt2).max(0.0) } else { 0.0 };
+                    *r = Rec4::scaled_position(*ka, &x[a]);
                 },
             );
         }
@@ -255,13 +288,13 @@ pub fn solve(
     // Apply the pressure of the final kappa.
     {
         let kap: &[f64] = kappa;
-        let gb = &work.gb;
+        let w = WaterPairs { x, rec: &work.rk, grad: &dens.fluid_grad };
         par::for_each_hot2(
             v,
             kappa_dt2,
             #[inline(always)]
             |a, va, kt| {
-                *va += dt * accel(c, fs, a, kap, rho0, gb);
+                *va += dt * accel(c, fs, a, kap, rho0, gb, w);
                 *kt = kap[a] * dt2;
             },
         );

@@ -687,7 +687,9 @@ impl Simulation {
     /// Bytes held by particle data, neighbour lists and solver work arrays (approximate).
     pub fn memory_bytes(&self) -> usize {
         let n = self.p.len();
-        let per_particle = 24 * 2 + 8 + 2 + 4 + 8 * 6 + 24 * 2 + 24 * 6 + 8 * 4;
+        // The last terms: the density pass's water and wall gradient sums and wall flux, the
+        // pressure solve's shifted positions and two 32-byte records (`pairsum`).
+        let per_particle = 24 * 2 + 8 + 2 + 4 + 8 * 6 + 24 * 2 + 24 * 6 + 8 * 4 + (24 * 2 + 8) + (24 + 32 * 2);
         // Per rest pair: neighbour index, rest gradient, hourglass constant.
         let solid = self.rest.nbr.len() * (4 + 24 + 8) + self.p.n_solid() * (24 + 8 * 2 + 72 * 3 + 32 + 24 + 16);
         n * per_particle + self.nb.bytes() + self.nbb.bytes() + solid + self.bnd.x.len() * (24 * 3 + 8 + 2)
