@@ -84,8 +84,7 @@ pub fn weighted(j: &[u32], g: &[f64], r: &[Rec4]) -> Rec4 {
     }
     let mut even = [0.0f64; 4];
     let mut odd = [0.0f64; 4];
-    let mut pairs = j.chunks_exact(2).zip(g.chunks_exact(2));
-    for (jj, gg) in &mut pairs {
+    for (jj, gg) in j.chunks_exact(2).zip(g.chunks_exact(2)) {
         let (r0, r1) = (&r[jj[0] as usize], &r[jj[1] as usize]);
         for l in 0..4 {
             even[l] += gg[0] * r0.0[l];
@@ -120,8 +119,7 @@ unsafe fn weighted_avx(j: &[u32], g: &[f64], r: &[Rec4]) -> Rec4 {
     };
     let mut even = _mm256_setzero_pd();
     let mut odd = _mm256_setzero_pd();
-    let mut pairs = j.chunks_exact(2).zip(g.chunks_exact(2));
-    for (jj, gg) in &mut pairs {
+    for (jj, gg) in j.chunks_exact(2).zip(g.chunks_exact(2)) {
         even = _mm256_add_pd(even, _mm256_mul_pd(_mm256_set1_pd(gg[0]), load(jj[0])));
         odd = _mm256_add_pd(odd, _mm256_mul_pd(_mm256_set1_pd(gg[1]), load(jj[1])));
     }

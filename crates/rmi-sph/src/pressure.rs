@@ -209,11 +209,12 @@ pub fn solve(
     {
         let w = WaterPairs { x, rec: &work.rq, grad: &dens.fluid_grad };
         let kdt2: &[f64] = kappa_dt2;
-        par::for_each_hot2(
+        par::for_each_hot3(
             &mut work.source,
             kappa,
+            &mut work.rk,
             #[inline(always)]
-            |a, s, ka| {
+            |a, s, ka, r| {
                 // The walls' part of the velocity divergence, sum V_k (v_a - v_k) . grad W_ak.
                 let bdiv = vv[a].dot(&gb[a]) - dens.boundary_flux[a];
                 let rho_adv = dens.rho_ratio[a] + dt * (div(c, fs, a, vv, w) + bdiv);
@@ -223,15 +224,8 @@ pub fn solve(
                 } else {
                     0.0
                 };
+                *r = Rec4::scaled_position(*ka, &x[a]);
             },
-        );
-    }
-    {
-        let kap: &[f64] = kappa;
-        par::for_each_hot(
-            &mut work.rk,
-            #[inline(always)]
-            |a, r| *r = Rec4::scaled_position(kap[a], &x[a]),
         );
     }
     let counts: Vec<f64> =
