@@ -12,6 +12,8 @@ __all__ = [
     "OBSERVATION_NAMES",
     "EXTRA_NAMES",
     "ACTION_NAMES",
+    "FORCE_LIMIT_N",
+    "SPONGE_SIZES_M",
     "engine_info",
     "_raise_error",
     "run_trial",
@@ -34,6 +36,10 @@ OBSERVATION_NAMES: Final[tuple[str, ...]]
 EXTRA_NAMES: Final[tuple[str, ...]]
 #: Action channels (same as ``rmi_learn.schema.ACTIONS``).
 ACTION_NAMES: Final[tuple[str, ...]]
+#: Hard force limit of the gripper (N): targets are clipped to it, loads above it open.
+FORCE_LIMIT_N: Final[float]
+#: The paper's three sponges as (x, y, z) sizes in m, small to large.
+SPONGE_SIZES_M: Final[tuple[tuple[float, float, float], ...]]
 
 def engine_info() -> dict[str, str]:
     """Build facts of the engine: ``version``, ``kernel`` and ``float``."""

@@ -167,6 +167,11 @@ fn _rmi_sph(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("OBSERVATION_NAMES", PyTuple::new(py, rmi_sph::observe::NAMES)?)?;
     m.add("EXTRA_NAMES", PyTuple::new(py, convert::EXTRAS)?)?;
     m.add("ACTION_NAMES", PyTuple::new(py, convert::ACTIONS)?)?;
+    // The robot's physical limits and the paper's sponges, so Python never restates them.
+    m.add("FORCE_LIMIT_N", rmi_sph::controller::FORCE_LIMIT)?;
+    let sizes: Vec<(f64, f64, f64)> =
+        rmi_sph::presets::SPONGE_SIZES.iter().map(|s| (s[0], s[1], s[2])).collect();
+    m.add("SPONGE_SIZES_M", PyTuple::new(py, sizes)?)?;
     m.add_function(wrap_pyfunction!(engine_info, m)?)?;
     m.add_function(wrap_pyfunction!(_raise_error, m)?)?;
     m.add_function(wrap_pyfunction!(run_trial, m)?)?;
