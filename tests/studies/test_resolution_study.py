@@ -1,14 +1,14 @@
-"""benches/resolution.py: water removed per phase against the particle radius."""
+"""studies/resolution.py: water removed per phase against the particle radius."""
 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import polars as pl
 import pytest
+from study_scripts import load_study
 
 PHASES = ("ramp", "hold", "lift", "waiting", "squeeze")
 
@@ -28,9 +28,9 @@ def _sweep(root: Path, name: str, radius: float, rows: list[dict[str, Any]]) -> 
 
 
 def test_rows_per_condition_coarse_to_fine(
-    bench_script: Callable[[str], Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    m = bench_script("resolution")
+    m = load_study("resolution")
     fine = _sweep(
         tmp_path,
         "fine",
@@ -67,7 +67,7 @@ def test_rows_per_condition_coarse_to_fine(
 def test_committed_grids_load_and_the_series_varies_only_the_radius() -> None:
     from rmi_learn.sweep import load_grid
 
-    grids = Path(__file__).resolve().parents[1] / "benches" / "grids"
+    grids = Path(__file__).resolve().parents[2] / "studies" / "grids"
     for f in sorted(grids.rglob("*.json")):
         load_grid(path=f)
     series = [load_grid(path=f) for f in sorted((grids / "resolution").glob("*.json"))]

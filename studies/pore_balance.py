@@ -1,4 +1,4 @@
-"""Water a gripped sponge releases against the pore volume it closes (issues 2 and 3).
+"""Water a gripped sponge releases against the pore volume it closes.
 
 A saturated sponge under compression keeps its pores full: the water it can release is the
 pore volume the skeleton closes (plus what free drainage lets through, nothing at the
@@ -9,7 +9,7 @@ positive pore pressure cannot do. This runs one scripted grasp-lift-squeeze tria
 volume V_pore at the phase's first and last sample, and the ratio of the water released to
 the pore volume closed since the plates closed.
 
-    .venv/bin/python benches/pore_balance.py --radius 0.008 [--size 8] [--porosity 0.7] \\
+    .venv/bin/python studies/pore_balance.py --radius 0.008 [--size 8] [--porosity 0.7] \\
         [--hold 140] [--squeeze 150] [--seed 0] [--gap G] [--layers] [--threads 2] \\
         [--every 50] [--json]
 
@@ -20,8 +20,8 @@ plate to the right: where in the sponge the pores empty.
 ``--gap`` sets the gripper's initial gap to the sponge's faces (m; the engine's default is
 5 mm): at coarse radii the plates' boundary reaches the pore water from a gap of 3r on.
 
-Phases and time step are those of ``benches/grids/resolution/`` (the study's phases at the
-engine's default dt = 1 ms), read from its grid file by ``benches/series_trial.py``.
+Phases and time step are those of ``studies/grids/resolution/`` (the study's phases at the
+engine's default dt = 1 ms), read from its grid file by ``studies/series_trial.py``.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-# The bench scripts are files, not a package: make their shared module importable however the
+# The study scripts are files, not a package: make their shared module importable however the
 # script is loaded (run from anywhere, or loaded by path in the tests).
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from series_trial import add_condition_args, report, trial_config  # noqa: E402
@@ -96,7 +96,7 @@ def run(a: argparse.Namespace) -> dict[str, Any]:
     cfg = trial_config(a, **({"gripper": {"gap": a.gap}} if a.gap is not None else {}))
     sim = rmi_sph.Simulation(cfg, num_threads=a.threads)
     t0 = time.perf_counter()
-    samples = []
+    samples: list[tuple[str, float, float]] = []
     layers: list[dict[str, Any]] = []
 
     def record_layers(phase: str) -> None:

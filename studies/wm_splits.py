@@ -1,4 +1,4 @@
-"""Do the paper's relative world-model claims survive another choice of held-out runs? (issue 6)
+"""Do the paper's relative world-model claims survive another choice of held-out runs?
 
 One study's test split holds one to five runs per sponge size, so a single table can turn on
 one run. Build the dataset again with other split seeds (``rmi dataset build --seed S``: the
@@ -9,7 +9,7 @@ Per sponge size and split it prints, at 0.64 s (``--step``), the water MAE (g) a
 water-error reduction against the Baseline. The pooled line per size weights each split's MAE by
 its test windows; the claim lines count the splits where each of the paper's relative claims holds.
 
-    .venv/bin/python benches/wm_splits.py --tables T_SEED0 T_SEED1 T_SEED2 [--step 32] [--json]
+    .venv/bin/python studies/wm_splits.py --tables T_SEED0 T_SEED1 T_SEED2 [--step 32] [--json]
 
 The splits share training runs, so they are not independent samples: the counts say how often
 a claim holds under another choice of held-out groups, not a significance level.
@@ -48,13 +48,14 @@ def load(table_dir: str | Path) -> list[dict[str, Any]]:
     path = Path(table_dir) / "results.json"
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no results.json (give rmi eval-wm --out directories)")
-    return json.loads(path.read_text(encoding="utf-8"))
+    records: list[dict[str, Any]] = json.loads(path.read_text(encoding="utf-8"))
+    return records
 
 
 def split_seed(table_dir: str | Path, records: list[dict[str, Any]]) -> Any:
     """The split seed ``rmi eval-wm`` recorded in ``records`` (``split_seed``), or None for
     tables written before it did; several seeds in one table are an error."""
-    seeds = {r.get("split_seed") for r in records} - {None}
+    seeds: set[Any] = {r.get("split_seed") for r in records} - {None}
     if len(seeds) > 1:
         raise ValueError(f"{table_dir}: records from several split seeds {sorted(seeds)}")
     return seeds.pop() if seeds else None
@@ -112,7 +113,7 @@ def summarise(tables: dict[str, list[dict[str, Any]]], step: int = MAIN_STEP) ->
     per_split = {name: cells(recs, step) for name, recs in tables.items()}
     out: dict[str, Any] = {"step": step, "horizon": horizon_label(step), "sizes": {}}
     for size in SIZES:
-        splits = {}
+        splits: dict[str, dict[str, Any]] = {}
         for name, c in per_split.items():
             row = c.get(size, {})
             base = row.get("baseline", {}).get("water")

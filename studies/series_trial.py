@@ -1,7 +1,7 @@
-"""The resolution series' trial, shared by the bench scripts that run it one at a time.
+"""The resolution series' trial, shared by the study scripts that run it one at a time.
 
-``benches/drain_depth.py`` and ``benches/pore_balance.py`` each run one scripted
-grasp-lift-squeeze trial of the condition of ``benches/grids/resolution/`` (the study's
+``studies/drain_depth.py`` and ``studies/pore_balance.py`` each run one scripted
+grasp-lift-squeeze trial of the condition of ``studies/grids/resolution/`` (the study's
 phases at the engine's default dt = 1 ms, read from its grid file) at a radius of the user's
 choice. This module holds their common command-line options, builds the trial's config and
 reports the result.

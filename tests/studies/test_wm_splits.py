@@ -1,13 +1,13 @@
-"""benches/wm_splits.py: the paper's relative claims over several grouped splits."""
+"""studies/wm_splits.py: the paper's relative claims over several grouped splits."""
 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
+from study_scripts import load_study
 
 KEYS = {
     "baseline": {"kind": "baseline", "state_groups": "ALL", "shuffled": False},
@@ -39,10 +39,8 @@ def _table(
     return d
 
 
-def test_reductions_pooling_and_claim_counts(
-    bench_script: Callable[[str], Any], tmp_path: Path
-) -> None:
-    m = bench_script("wm_splits")
+def test_reductions_pooling_and_claim_counts(tmp_path: Path) -> None:
+    m = load_study("wm_splits")
     a = _table(
         tmp_path,
         "a",
@@ -99,9 +97,9 @@ def test_reductions_pooling_and_claim_counts(
 
 
 def test_refuses_one_split_twice_and_missing_tables(
-    bench_script: Callable[[str], Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    m = bench_script("wm_splits")
+    m = load_study("wm_splits")
     cells = {("baseline", 8): (20.0, 10.0, 100), ("ac-gru", 8): (8.0, 4.0, 100)}
     a = _table(tmp_path, "a", 3, cells)
     b = _table(tmp_path, "b", 3, cells)

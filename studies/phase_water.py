@@ -5,7 +5,7 @@ and ``squeeze`` (N), and any ``rmi_sph.trial_config`` override (``pressure``, ``
 ...). The study grid's timings at r = 8 mm are the defaults. Prints one line per trial:
 retained water at start and end, grams removed per phase, wall time.
 
-    python benches/phase_water.py '{"phi": 0.5, "hold": 100, "squeeze": 300}' \
+    python studies/phase_water.py '{"phi": 0.5, "hold": 100, "squeeze": 300}' \
         '{"phi": 0.5, "hold": 100, "squeeze": 300, "pressure": {"drag_coupled": false}}'
 """
 

@@ -1,17 +1,17 @@
-"""Where in the sponge does the released water start? (issues 2 and 3)
+"""Where in the sponge does the released water start?
 
 Runs one scripted grasp-lift-squeeze trial through ``rmi_sph.Simulation`` and sorts the pore
 water by its initial depth below the sponge's surface (the skeleton's rest box, grown by one
 particle radius to the block's faces). For each depth band it prints the water that started
 there and the part of it that is no longer retained when the trial ends. At a converged
 resolution the release would not depend on how many particle layers the surface band holds;
-``benches/resolution.py`` shows that the amount does, and this shows from where it comes.
+``studies/resolution.py`` shows that the amount does, and this shows from where it comes.
 
-    .venv/bin/python benches/drain_depth.py --radius 0.008 [--size 8] [--porosity 0.7] \\
+    .venv/bin/python studies/drain_depth.py --radius 0.008 [--size 8] [--porosity 0.7] \\
         [--hold 140] [--squeeze 150] [--seed 0] [--threads 2] [--json]
 
-Phases and time step are those of ``benches/grids/resolution/`` (the study's phases at the
-engine's default dt = 1 ms), read from its grid file by ``benches/series_trial.py``.
+Phases and time step are those of ``studies/grids/resolution/`` (the study's phases at the
+engine's default dt = 1 ms), read from its grid file by ``studies/series_trial.py``.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-# The bench scripts are files, not a package: make their shared module importable however the
+# The study scripts are files, not a package: make their shared module importable however the
 # script is loaded (run from anywhere, or loaded by path in the tests).
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from series_trial import add_condition_args, report, trial_config  # noqa: E402
@@ -39,7 +39,8 @@ def depths(x0: np.ndarray, rest_positions: np.ndarray, radius: float) -> np.ndar
     rest box grown by ``radius`` (the block's faces); negative outside it."""
     lo = rest_positions.min(axis=0) - radius
     hi = rest_positions.max(axis=0) + radius
-    return np.minimum((x0 - lo).min(axis=1), (hi - x0).min(axis=1))
+    depth: np.ndarray = np.minimum((x0 - lo).min(axis=1), (hi - x0).min(axis=1))
+    return depth
 
 
 def release_by_depth(

@@ -1,4 +1,4 @@
-"""How much of a world model's forecast error is its training seed (issue 6).
+"""How much of a world model's forecast error is its training seed.
 
 Give several runs of one model trained with the same settings and different ``--seed``.
 Per sponge size it prints the water MAE (g) and force MAE (N) of the free rollouts of the
@@ -7,7 +7,7 @@ by step, the contact and friction probabilities averaged and turned back into lo
 0.16, 0.32, 0.64 and 1.28 s. The spread between the runs is what one training run can move a
 table cell; the average shows how much of the error is that variance rather than bias.
 
-    .venv/bin/python benches/wm_seeds.py --runs RUN_SEED0 RUN_SEED1 RUN_SEED2 \\
+    .venv/bin/python studies/wm_seeds.py --runs RUN_SEED0 RUN_SEED1 RUN_SEED2 \\
         --data DATASET [--split val|test|train] [--json]
 
 Choose settings on ``--split val``; the test split is for reporting what was chosen.

@@ -1,12 +1,11 @@
-"""benches/pore_balance.py: water released against pore volume closed, per phase."""
+"""studies/pore_balance.py: water released against pore volume closed, per phase."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from typing import Any
 
 import pytest
+from study_scripts import load_study
 
 #: (phase, M_L kg, V_pore m^3) samples of a short made-up trial.
 SAMPLES = [
@@ -20,8 +19,8 @@ SAMPLES = [
 ]
 
 
-def test_per_phase_first_and_last_sample(bench_script: Callable[[str], Any]) -> None:
-    m = bench_script("pore_balance")
+def test_per_phase_first_and_last_sample() -> None:
+    m = load_study("pore_balance")
     rows = m.per_phase(SAMPLES)
     assert [r["phase"] for r in rows] == ["settle", "close", "ramp", "hold", "done"]
     ramp = rows[2]
@@ -32,8 +31,8 @@ def test_per_phase_first_and_last_sample(bench_script: Callable[[str], Any]) -> 
     assert rows[3]["closed_cm3"] == pytest.approx(-1.0)
 
 
-def test_balance_counts_from_the_plates_closing(bench_script: Callable[[str], Any]) -> None:
-    m = bench_script("pore_balance")
+def test_balance_counts_from_the_plates_closing() -> None:
+    m = load_study("pore_balance")
     b = m.balance(SAMPLES)
     # From close (800 g, 806 cm^3) to the end (760 g, 796 cm^3): 40 g for 10 g of pores.
     assert b["released_g"] == pytest.approx(40.0)
@@ -48,10 +47,8 @@ def test_balance_counts_from_the_plates_closing(bench_script: Callable[[str], An
         m.balance([("settle", 0.8, 800e-6)])
 
 
-def test_bad_options_are_clear_errors(
-    bench_script: Callable[[str], Any], capsys: pytest.CaptureFixture[str]
-) -> None:
-    m = bench_script("pore_balance")
+def test_bad_options_are_clear_errors(capsys: pytest.CaptureFixture[str]) -> None:
+    m = load_study("pore_balance")
     assert m.main(["--radius", "0.008", "--every", "0"]) == 2
     assert "--every" in capsys.readouterr().err
     assert m.main(["--radius", "0.5"]) == 2
@@ -61,8 +58,8 @@ def test_bad_options_are_clear_errors(
     assert "gripper.gap" in capsys.readouterr().err
 
 
-def test_layer_saturation_groups_by_rest_x(bench_script: Callable[[str], Any]) -> None:
-    m = bench_script("pore_balance")
+def test_layer_saturation_groups_by_rest_x() -> None:
+    m = load_study("pore_balance")
     # Two layers (x = -0.01 and 0.01, the second with round-off), unordered input.
     rest_x = [0.01, -0.01, 0.0100000001, -0.01]
     sat = [0.4, 1.0, 0.6, 0.8]

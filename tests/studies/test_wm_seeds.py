@@ -1,20 +1,17 @@
-"""benches/wm_seeds.py: the seed-average forecast and its report."""
+"""studies/wm_seeds.py: the seed-average forecast and its report."""
 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import pytest
 import torch
+from study_scripts import load_study
 
 
-def test_average_forecasts_means_states_and_probabilities(
-    bench_script: Callable[[str], Any],
-) -> None:
-    m = bench_script("wm_seeds")
+def test_average_forecasts_means_states_and_probabilities() -> None:
+    m = load_study("wm_seeds")
     g = torch.Generator().manual_seed(0)
     outs = [
         {
@@ -33,7 +30,6 @@ def test_average_forecasts_means_states_and_probabilities(
 
 
 def test_report_of_two_seeds(
-    bench_script: Callable[[str], Any],
     synthetic_dataset_dir: Path,
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
@@ -48,7 +44,7 @@ def test_report_of_two_seeds(
         assert rmi(argv) == 0
         runs.append(str(out))
     capsys.readouterr()
-    m = bench_script("wm_seeds")
+    m = load_study("wm_seeds")
     assert m.main(["--runs", *runs, "--data", str(synthetic_dataset_dir), "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res, "no size with validation windows"

@@ -1,18 +1,14 @@
-"""benches/drain_depth.py: where in the sponge the released water started."""
+"""studies/drain_depth.py: where in the sponge the released water started."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any
-
 import numpy as np
 import pytest
+from study_scripts import load_study
 
 
-def test_depths_from_the_grown_rest_box_and_release_per_band(
-    bench_script: Callable[[str], Any],
-) -> None:
-    m = bench_script("drain_depth")
+def test_depths_from_the_grown_rest_box_and_release_per_band() -> None:
+    m = load_study("drain_depth")
     # Skeleton centres span [0.01, 0.09] x [0.01, 0.09] x [0.01, 0.19]; faces at r = 0.01 beyond.
     rest = np.array([[0.01, 0.01, 0.01], [0.09, 0.09, 0.19]])
     x0 = np.array(
@@ -35,9 +31,7 @@ def test_depths_from_the_grown_rest_box_and_release_per_band(
     ]
 
 
-def test_bad_radius_is_a_clear_error(
-    bench_script: Callable[[str], Any], capsys: pytest.CaptureFixture[str]
-) -> None:
-    m = bench_script("drain_depth")
+def test_bad_radius_is_a_clear_error(capsys: pytest.CaptureFixture[str]) -> None:
+    m = load_study("drain_depth")
     assert m.main(["--radius", "0.5"]) == 2
     assert "particle_radius" in capsys.readouterr().err

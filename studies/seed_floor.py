@@ -1,4 +1,4 @@
-"""How much of the 0.64 s water forecast error no world model can remove (issue 6).
+"""How much of the 0.64 s water forecast error no world model can remove.
 
 Runs that differ only in the seed of the initial pore-water jitter get the same command
 schedule, yet release their water particles at different moments. At every grid time k the
@@ -20,11 +20,11 @@ of the seed-to-seed spread of D the history explains: the in-sample R^2 of a lea
 fit of D_s(k) - median_s D(k) on the same deviations of the history features (retained water
 now, 0.16 s and 0.32 s ago, saturation, pore volume, force, width; pooled over all groups).
 
-    .venv/bin/rmi sweep --grid benches/grids/study-replicates.json --out results/replicates/sweep
-    .venv/bin/python benches/seed_floor.py results/replicates/sweep [--horizon 32] [--json]
+    .venv/bin/rmi sweep --grid studies/grids/study-replicates.json --out results/replicates/sweep
+    .venv/bin/python studies/seed_floor.py results/replicates/sweep [--horizon 32] [--json]
 
 Several sweeps may be given (one per grid, e.g. the held-out test groups of the study split,
-``benches/grids/test-replicates/*.json``); the per-size lines pool every condition's anchors.
+``studies/grids/test-replicates/*.json``); the per-size lines pool every condition's anchors.
 """
 
 from __future__ import annotations

@@ -1,12 +1,10 @@
-"""The seed-replicate floor of benches/seed_floor.py (issue 6 identifiability evidence)."""
+"""The seed-replicate floor of studies/seed_floor.py."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any
-
 import numpy as np
 import pytest
+from study_scripts import load_study
 
 
 def _run(k0: int, m: np.ndarray, phases: list[str]) -> dict[str, np.ndarray]:
@@ -18,8 +16,8 @@ def _run(k0: int, m: np.ndarray, phases: list[str]) -> dict[str, np.ndarray]:
     return r
 
 
-def test_floors_of_known_replicates(bench_script: Callable[[str], Any]) -> None:
-    sf = bench_script("seed_floor")
+def test_floors_of_known_replicates() -> None:
+    sf = load_study("seed_floor")
     # Four seeds with the same mean outflow and seed offsets -2, -1, +1, +2 (g): the median
     # forecast is off by 2, 1, 1, 2 -> 1.5 g; leaving one seed out, the median of the others
     # is off by 3, 2, 2, 3 -> 2.5 g; the Baseline's error is the outflow, 10 g.
@@ -30,8 +28,8 @@ def test_floors_of_known_replicates(bench_script: Callable[[str], Any]) -> None:
     assert sf.floors(np.full((4, 3), 5.0))[1:] == (0.0, 0.0)
 
 
-def test_deltas_use_anchors_common_to_all_seeds(bench_script: Callable[[str], Any]) -> None:
-    sf = bench_script("seed_floor")
+def test_deltas_use_anchors_common_to_all_seeds() -> None:
+    sf = load_study("seed_floor")
     h = 4
     phases = ["settle"] * 20 + ["hold"] * 20
     a = _run(0, np.linspace(1.0, 0.6, 40), phases)
@@ -47,8 +45,8 @@ def test_deltas_use_anchors_common_to_all_seeds(bench_script: Callable[[str], An
     assert d[1] == pytest.approx(np.full(len(ks), -0.8 / 39 * h))
 
 
-def test_conditions_keep_force_variants_apart(bench_script: Callable[[str], Any]) -> None:
-    sf = bench_script("seed_floor")
+def test_conditions_keep_force_variants_apart() -> None:
+    sf = load_study("seed_floor")
     row = {"size_cm": 8, "porosity": 0.7, "F_hold": 140.0, "F_squeeze": 150.0, "seed": 1}
     other_squeeze = dict(row, F_squeeze=300.0)
     other_seed = dict(row, seed=2)

@@ -1,14 +1,14 @@
-"""Is the water a sponge releases converged in the particle size? (issues 2 and 3)
+"""Is the water a sponge releases converged in the particle size?
 
-Give sweeps of the same conditions at different particle radii (``benches/grids/resolution/``:
+Give sweeps of the same conditions at different particle radii (``studies/grids/resolution/``:
 the 8 and 10 cm sponges at porosity 0.7, holding 140 N, squeeze 150 N, r = 8 / 6.5 / 5 / 4 mm,
 all at dt = 1 ms). Per condition it prints, for each radius, the initial pore water and the
 water removed in each controller phase and in all (g, and % of the initial water). A converged
 engine gives the same grams at every radius, up to one particle's mass.
 
-    for r in 8 6.5 5 4; do .venv/bin/rmi sweep --grid benches/grids/resolution/r${r}mm.json \\
+    for r in 8 6.5 5 4; do .venv/bin/rmi sweep --grid studies/grids/resolution/r${r}mm.json \\
         --out results/resolution/r$r --workers 2 --threads-per-run 1; done
-    .venv/bin/python benches/resolution.py results/resolution/* [--json]
+    .venv/bin/python studies/resolution.py results/resolution/* [--json]
 """
 
 from __future__ import annotations
