@@ -5,7 +5,7 @@ the inference path (``torch.no_grad``) and, for the GRU models, also their torch
 (``native`` off) and the differentiable training loop on the same inputs, interleaved in
 blocks so that all see the same machine load. The GRUs' inference path is the native rollout
 (``rmi_sph.GruForecaster``), on ``--threads`` threads like torch. Prints the median of the
-block medians and the best block, in ms (issue 6 target: 5 ms on 2 cores).
+block medians and the best block, in ms (the target: 5 ms on 2 cores).
 
     .venv/bin/python benches/bench_wm_latency.py [--runs DIR ...] [--kinds ac-gru,state-gru]
         [--threads 1] [--blocks 20] [--calls 15]

@@ -1,4 +1,4 @@
-"""Round bookkeeping of benches/compare_splishsplash.py (issue 2's SPlisHSPlasH comparison).
+"""Round bookkeeping of benches/compare_splishsplash.py (the dam-break throughput comparison).
 
 Only the pure summary functions are exercised: running either engine takes minutes and
 SPlisHSPlasH is not a test dependency.
