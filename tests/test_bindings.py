@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import os
 import pickle
-import signal
 import threading
 import time
 import warnings
@@ -23,6 +22,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import rmi_sph
+from binding_util import assert_interruptible, in_forked_child, same
 from rmi_learn.runs import RUN_COLUMNS, read_run, write_run
 from rmi_learn.schema import ACTIONS, EXTRAS, OBS, PHASES
 from tiny_trial import tiny_config
@@ -36,12 +36,6 @@ def cfg() -> dict[str, Any]:
 @pytest.fixture(scope="module")
 def trial(cfg: dict[str, Any]) -> dict[str, Any]:
     return rmi_sph.run_trial(cfg, num_threads=1)
-
-
-def same(a: np.ndarray, b: np.ndarray) -> bool:
-    """Bit-identical, NaN equal to NaN."""
-    a, b = np.asarray(a), np.asarray(b)
-    return bool(np.array_equal(a, b, equal_nan=a.dtype.kind == "f"))
 
 
 # --------------------------------------------------------------------------------------
@@ -358,33 +352,12 @@ def test_step_releases_the_gil(cfg: dict[str, Any]) -> None:
     assert ticks >= max(5, int(0.2 * elapsed / 0.0011)), (ticks, elapsed)
 
 
-def _interrupt_after(seconds: float) -> Any:
-    def handler(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
-
-    old = signal.signal(signal.SIGALRM, handler)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    return old
-
-
 def test_ctrl_c_interrupts_step_and_run_trial(cfg: dict[str, Any]) -> None:
     sim = rmi_sph.Trial(cfg, num_threads=1)
-    old = _interrupt_after(0.2)
-    try:
-        t0 = time.perf_counter()
-        with pytest.raises(KeyboardInterrupt):
-            sim.step(10**7)
-        assert time.perf_counter() - t0 < 5.0
-        assert 0 < sim.step_count < 10**7
-        long = tiny_config(settle_time=50.0)
-        _interrupt_after(0.2)
-        t0 = time.perf_counter()
-        with pytest.raises(KeyboardInterrupt):
-            rmi_sph.run_trial(long, num_threads=1)
-        assert time.perf_counter() - t0 < 5.0
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
+    assert_interruptible(lambda: sim.step(10**7))
+    assert 0 < sim.step_count < 10**7
+    long = tiny_config(settle_time=50.0)
+    assert_interruptible(lambda: rmi_sph.run_trial(long, num_threads=1))
 
 
 def test_panics_become_rmi_errors() -> None:
@@ -396,18 +369,12 @@ def test_panics_become_rmi_errors() -> None:
 def test_forked_child_rebuilds_its_thread_pool(cfg: dict[str, Any]) -> None:
     sim = rmi_sph.Trial(cfg, num_threads=2)
     sim.step(10)
-    r, w = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # child: the parent's rayon workers do not exist here
-        try:
-            sim.step(20)
-            os.write(w, sim.observation_vector().tobytes())
-        finally:
-            os._exit(0)
-    os.close(w)
-    with os.fdopen(r, "rb") as f:
-        data = f.read()
-    os.waitpid(pid, 0)
+
+    def child() -> bytes:
+        sim.step(20)
+        return sim.observation_vector().tobytes()
+
+    data = in_forked_child(child)
     sim.step(20)
     assert same(np.frombuffer(data, dtype=np.float64), sim.observation_vector())
 

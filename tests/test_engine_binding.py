@@ -9,8 +9,6 @@ from __future__ import annotations
 import json
 import os
 import pickle
-import signal
-import time
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -20,16 +18,11 @@ import numpy as np
 import pytest
 
 import rmi_sph
+from binding_util import assert_interruptible, in_forked_child, same
 from rmi_sph import engine
 
 #: Particle radius of the test dam break (m).
 DAM_RADIUS = 0.04
-
-
-def same(a: np.ndarray, b: np.ndarray) -> bool:
-    """Bit-identical, NaN equal to NaN."""
-    a, b = np.asarray(a), np.asarray(b)
-    return bool(np.array_equal(a, b, equal_nan=a.dtype.kind == "f"))
 
 
 @pytest.fixture(scope="module")
@@ -244,39 +237,20 @@ def test_kinematic_body_moves_with_its_velocity() -> None:
 
 def test_ctrl_c_interrupts_step(dam: dict[str, Any]) -> None:
     sim = engine.Simulation(dam, num_threads=1)
-
-    def handler(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
-
-    old = signal.signal(signal.SIGALRM, handler)
-    signal.setitimer(signal.ITIMER_REAL, 0.2)
-    try:
-        t0 = time.perf_counter()
-        with pytest.raises(KeyboardInterrupt):
-            sim.step(10**7)
-        assert time.perf_counter() - t0 < 5.0
-        assert 0 < sim.step_count < 10**7
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
+    assert_interruptible(lambda: sim.step(10**7))
+    assert 0 < sim.step_count < 10**7
 
 
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
 def test_forked_child_rebuilds_its_thread_pool(sponge: dict[str, Any]) -> None:
     sim = engine.Simulation(sponge, num_threads=2)
     sim.step(5)
-    r, w = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # child: the parent's rayon workers do not exist here
-        try:
-            sim.step(10)
-            os.write(w, sim.particles("porous")["positions"].tobytes())
-        finally:
-            os._exit(0)
-    os.close(w)
-    with os.fdopen(r, "rb") as f:
-        data = f.read()
-    os.waitpid(pid, 0)
+
+    def child() -> bytes:
+        sim.step(10)
+        return sim.particles("porous")["positions"].tobytes()
+
+    data = in_forked_child(child)
     sim.step(10)
     got = np.frombuffer(data, dtype=np.float64).reshape(-1, 3)
     assert same(got, sim.particles("porous")["positions"])
