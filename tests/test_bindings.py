@@ -1,4 +1,4 @@
-"""The Python binding `rmi_sph`: configs, Simulation, run_trial, state, threads, errors.
+"""The Python binding `rmi_sph`: configs, Trial, run_trial, state, threads, errors.
 
 Scenes are tiny (8 cm sponge of porosity 0.8 at r = 10 mm, about 250 dynamic particles,
 dt = 2 ms, short phases, a squeeze to 150 N that expels some water): a whole trial takes a
@@ -10,9 +10,9 @@ from __future__ import annotations
 import json
 import os
 import pickle
-import signal
 import threading
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +22,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import rmi_sph
+from binding_util import assert_interruptible, in_forked_child, same
 from rmi_learn.runs import RUN_COLUMNS, read_run, write_run
 from rmi_learn.schema import ACTIONS, EXTRAS, OBS, PHASES
 from tiny_trial import tiny_config
@@ -35,12 +36,6 @@ def cfg() -> dict[str, Any]:
 @pytest.fixture(scope="module")
 def trial(cfg: dict[str, Any]) -> dict[str, Any]:
     return rmi_sph.run_trial(cfg, num_threads=1)
-
-
-def same(a: np.ndarray, b: np.ndarray) -> bool:
-    """Bit-identical, NaN equal to NaN."""
-    a, b = np.asarray(a), np.asarray(b)
-    return bool(np.array_equal(a, b, equal_nan=a.dtype.kind == "f"))
 
 
 # --------------------------------------------------------------------------------------
@@ -96,7 +91,7 @@ def test_default_and_trial_config(tmp_path: Path) -> None:
         (lambda: rmi_sph.validate_config({"controller": 3}), "controller"),
         (lambda: rmi_sph.validate_config({"dt": float("nan")}), "dt"),
         (lambda: rmi_sph.validate_config({"saturated": 1}), "saturated"),
-        (lambda: rmi_sph.Simulation({"friction": {"mu_kinetic": 5.0}}), "friction.mu_kinetic"),
+        (lambda: rmi_sph.Trial({"friction": {"mu_kinetic": 5.0}}), "friction.mu_kinetic"),
         (lambda: rmi_sph.run_trial({"jitter": 0.9}), "jitter"),
         (lambda: rmi_sph.validate_config("{not json"), "trial"),
     ],
@@ -112,14 +107,14 @@ def test_bad_config_names_the_field(make: Any, field: str) -> None:
 @pytest.mark.parametrize(
     ("call", "field", "value"),
     [
-        (lambda c: rmi_sph.Simulation(c).step(-1), "n", "-1"),
-        (lambda c: rmi_sph.Simulation(c, num_threads=-1), "num_threads", "-1"),
-        (lambda c: rmi_sph.Simulation(c, num_threads=2000), "num_threads", "2000"),
+        (lambda c: rmi_sph.Trial(c).step(-1), "n", "-1"),
+        (lambda c: rmi_sph.Trial(c, num_threads=-1), "num_threads", "-1"),
+        (lambda c: rmi_sph.Trial(c, num_threads=2000), "num_threads", "2000"),
         (lambda c: rmi_sph.run_trial(c, num_threads=-2), "num_threads", "-2"),
         (lambda c: rmi_sph.run_trial(c, record_every=-3), "record_every", "-3"),
         (lambda c: rmi_sph.run_trial(c, record_every=2**40), "record_every", str(2**40)),
         (lambda c: rmi_sph.trial_config(8, 0.6, 20, 40, seed=-1), "seed", "-1"),
-        (lambda c: rmi_sph.Simulation.from_state(b"", num_threads=-4), "num_threads", "-4"),
+        (lambda c: rmi_sph.Trial.from_state(b"", num_threads=-4), "num_threads", "-4"),
     ],
 )
 def test_out_of_range_integers_name_the_argument(
@@ -136,9 +131,9 @@ def test_out_of_range_integers_name_the_argument(
 def test_state_file_errors_name_the_file(cfg: dict[str, Any], tmp_path: Path) -> None:
     missing = tmp_path / "missing.bin"
     with pytest.raises(FileNotFoundError) as info:
-        rmi_sph.Simulation.load(str(missing))
+        rmi_sph.Trial.load(str(missing))
     assert info.value.filename == str(missing) and str(missing) in str(info.value)
-    sim = rmi_sph.Simulation(cfg)
+    sim = rmi_sph.Trial(cfg)
     folder = tmp_path / "d"
     folder.mkdir()
     for target, kind in ((folder, IsADirectoryError), (folder / "no" / "s.bin", FileNotFoundError)):
@@ -151,9 +146,9 @@ def test_state_file_errors_name_the_file(cfg: dict[str, Any], tmp_path: Path) ->
 
 def test_config_type_errors(tmp_path: Path) -> None:
     with pytest.raises(TypeError):
-        rmi_sph.Simulation(42)  # type: ignore[arg-type]
+        rmi_sph.Trial(42)  # type: ignore[arg-type]
     with pytest.raises(FileNotFoundError):
-        rmi_sph.Simulation(str(tmp_path / "missing.json"))
+        rmi_sph.Trial(str(tmp_path / "missing.json"))
 
 
 _CONTROLLER_FIELDS = sorted(rmi_sph.default_config()["controller"])
@@ -185,11 +180,11 @@ def test_property_unknown_keys_are_refused(key: str) -> None:
 
 
 # --------------------------------------------------------------------------------------
-# Simulation
+# Trial
 
 
 def test_simulation_round_trip(cfg: dict[str, Any]) -> None:
-    sim = rmi_sph.Simulation(cfg, num_threads=1)
+    sim = rmi_sph.Trial(cfg, num_threads=1)
     assert sim.config == cfg
     first = sim.observation()
     assert (sim.time, sim.step_count, sim.phase, sim.finished, sim.failure) == (
@@ -203,7 +198,7 @@ def test_simulation_round_trip(cfg: dict[str, Any]) -> None:
     assert sim.step() == 1
     assert sim.step(59) == 59
     assert sim.step_count == 60 and sim.time == pytest.approx(0.12)
-    assert sim.phase in PHASES and "Simulation(" in repr(sim)
+    assert sim.phase in PHASES and "Trial(" in repr(sim)
     obs = sim.observation()
     assert list(obs)[:23] == list(OBS)
     assert set(EXTRAS) | set(ACTIONS) <= set(obs)
@@ -272,7 +267,7 @@ def test_simulation_round_trip(cfg: dict[str, Any]) -> None:
 
 
 def test_threads_give_bit_identical_results(cfg: dict[str, Any]) -> None:
-    sims = [rmi_sph.Simulation(cfg, num_threads=k) for k in (1, 2)]
+    sims = [rmi_sph.Trial(cfg, num_threads=k) for k in (1, 2)]
     for _ in range(4):
         for s in sims:
             s.step(25)
@@ -285,21 +280,21 @@ def test_threads_give_bit_identical_results(cfg: dict[str, Any]) -> None:
             assert same(pa[key], pb[key]), (kind, key)
 
 
-def _continue(sim: rmi_sph.Simulation, n: int = 30) -> tuple[np.ndarray, np.ndarray]:
+def _continue(sim: rmi_sph.Trial, n: int = 30) -> tuple[np.ndarray, np.ndarray]:
     sim.step(n)
     return sim.observation_vector(), sim.particles("solid")["positions"]
 
 
 def test_state_and_pickle_continue_identically(cfg: dict[str, Any], tmp_path: Path) -> None:
-    sim = rmi_sph.Simulation(cfg, num_threads=1)
+    sim = rmi_sph.Trial(cfg, num_threads=1)
     sim.step(70)  # in contact: friction memory, controller and gate state matter
     state = sim.get_state()
     assert isinstance(state, bytes)
     pickled = pickle.loads(pickle.dumps(sim))
-    from_state = rmi_sph.Simulation.from_state(state, num_threads=2)
+    from_state = rmi_sph.Trial.from_state(state, num_threads=2)
     sim.save(tmp_path / "s.bin")
-    loaded = rmi_sph.Simulation.load(tmp_path / "s.bin", num_threads=1)
-    other = rmi_sph.Simulation(tiny_config(jitter=0.1), num_threads=1)
+    loaded = rmi_sph.Trial.load(tmp_path / "s.bin", num_threads=1)
+    other = rmi_sph.Trial(tiny_config(jitter=0.1), num_threads=1)
     other.set_state(state)
     assert other.config == cfg and other.time == sim.time and other.phase == sim.phase
     ref = _continue(sim)
@@ -311,11 +306,31 @@ def test_state_and_pickle_continue_identically(cfg: dict[str, Any], tmp_path: Pa
     with pytest.raises(rmi_sph.StateError):
         sim.set_state(state[:100])
     with pytest.raises(FileNotFoundError):
-        rmi_sph.Simulation.load(tmp_path / "missing.bin")
+        rmi_sph.Trial.load(tmp_path / "missing.bin")
+
+
+def test_deprecated_name_and_its_pickles_still_work(cfg: dict[str, Any]) -> None:
+    with pytest.warns(DeprecationWarning, match=r"rmi_sph\.Trial"):
+        old_name = rmi_sph.Simulation
+    sim = old_name(cfg, num_threads=1)
+    assert type(sim) is rmi_sph.Trial
+    sim.step(10)
+    # Pickles from before the rename name the class `rmi_sph._rmi_sph.Simulation`; protocol 2
+    # writes globals as text, so such a pickle is this one with the name swapped.
+    new = pickle.dumps(sim, protocol=2)
+    assert b"crmi_sph._rmi_sph\nTrial\n" in new
+    old = new.replace(b"crmi_sph._rmi_sph\nTrial\n", b"crmi_sph._rmi_sph\nSimulation\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        restored = pickle.loads(old)
+    assert type(restored) is rmi_sph.Trial
+    ref = _continue(sim)
+    got = _continue(restored)
+    assert same(got[0], ref[0]) and same(got[1], ref[1])
 
 
 def test_step_releases_the_gil(cfg: dict[str, Any]) -> None:
-    sim = rmi_sph.Simulation(cfg, num_threads=1)
+    sim = rmi_sph.Trial(cfg, num_threads=1)
     sim.step(5)
     ticks = 0
     stop = threading.Event()
@@ -337,33 +352,12 @@ def test_step_releases_the_gil(cfg: dict[str, Any]) -> None:
     assert ticks >= max(5, int(0.2 * elapsed / 0.0011)), (ticks, elapsed)
 
 
-def _interrupt_after(seconds: float) -> Any:
-    def handler(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
-
-    old = signal.signal(signal.SIGALRM, handler)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    return old
-
-
 def test_ctrl_c_interrupts_step_and_run_trial(cfg: dict[str, Any]) -> None:
-    sim = rmi_sph.Simulation(cfg, num_threads=1)
-    old = _interrupt_after(0.2)
-    try:
-        t0 = time.perf_counter()
-        with pytest.raises(KeyboardInterrupt):
-            sim.step(10**7)
-        assert time.perf_counter() - t0 < 5.0
-        assert 0 < sim.step_count < 10**7
-        long = tiny_config(settle_time=50.0)
-        _interrupt_after(0.2)
-        t0 = time.perf_counter()
-        with pytest.raises(KeyboardInterrupt):
-            rmi_sph.run_trial(long, num_threads=1)
-        assert time.perf_counter() - t0 < 5.0
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
+    sim = rmi_sph.Trial(cfg, num_threads=1)
+    assert_interruptible(lambda: sim.step(10**7))
+    assert 0 < sim.step_count < 10**7
+    long = tiny_config(settle_time=50.0)
+    assert_interruptible(lambda: rmi_sph.run_trial(long, num_threads=1))
 
 
 def test_panics_become_rmi_errors() -> None:
@@ -373,20 +367,14 @@ def test_panics_become_rmi_errors() -> None:
 
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
 def test_forked_child_rebuilds_its_thread_pool(cfg: dict[str, Any]) -> None:
-    sim = rmi_sph.Simulation(cfg, num_threads=2)
+    sim = rmi_sph.Trial(cfg, num_threads=2)
     sim.step(10)
-    r, w = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # child: the parent's rayon workers do not exist here
-        try:
-            sim.step(20)
-            os.write(w, sim.observation_vector().tobytes())
-        finally:
-            os._exit(0)
-    os.close(w)
-    with os.fdopen(r, "rb") as f:
-        data = f.read()
-    os.waitpid(pid, 0)
+
+    def child() -> bytes:
+        sim.step(20)
+        return sim.observation_vector().tobytes()
+
+    data = in_forked_child(child)
     sim.step(20)
     assert same(np.frombuffer(data, dtype=np.float64), sim.observation_vector())
 
@@ -443,7 +431,7 @@ def test_record_every_override(cfg: dict[str, Any]) -> None:
 def test_stepping_with_recording_equals_run_trial(
     trial: dict[str, Any], cfg: dict[str, Any]
 ) -> None:
-    sim = rmi_sph.Simulation(cfg, num_threads=2, record=True)
+    sim = rmi_sph.Trial(cfg, num_threads=2, record=True)
     with pytest.raises(rmi_sph.StateError):
         sim.take_record()
     while not sim.finished:

@@ -121,10 +121,11 @@ def test_import_rmi_learn() -> None:
 
 
 def test_stubs_match_native_module() -> None:
-    """`mypy.stubtest` compares python/rmi_sph/_rmi_sph.pyi with the compiled module."""
+    """`mypy.stubtest` compares python/rmi_sph/_rmi_sph.pyi and engine.pyi (its submodule
+    `rmi_sph.engine`) with the compiled module."""
     env = dict(os.environ, MYPYPATH=str(ROOT / "python"))
     proc = subprocess.run(
-        [sys.executable, "-m", "mypy.stubtest", "rmi_sph._rmi_sph"],
+        [sys.executable, "-m", "mypy.stubtest", "rmi_sph._rmi_sph", "rmi_sph.engine"],
         cwd=ROOT,
         env=env,
         capture_output=True,

@@ -6,6 +6,8 @@ from typing import Any, Final, Literal, final
 import numpy as np
 import numpy.typing as npt
 
+from rmi_sph import engine as engine
+
 # pyo3 lists everything added to the module in __all__, so `from ._rmi_sph import *` takes it all.
 __all__ = [
     "__version__",
@@ -20,7 +22,8 @@ __all__ = [
     "trial_config",
     "default_config",
     "validate_config",
-    "Simulation",
+    "Trial",
+    "engine",
     "GruForecaster",
     "RmiError",
     "ConfigError",
@@ -73,8 +76,9 @@ def validate_config(config: dict[str, Any] | str | os.PathLike[str]) -> dict[str
     """Check a configuration; return it complete as a dict."""
 
 @final
-class Simulation:
-    """A grasp-lift-squeeze trial stepped from Python."""
+class Trial:
+    """A grasp-lift-squeeze trial stepped from Python (called ``Simulation`` before; that name
+    is a deprecated alias for one release)."""
 
     def __new__(
         cls,
@@ -82,7 +86,7 @@ class Simulation:
         *,
         num_threads: int | None = None,
         record: bool = False,
-    ) -> Simulation: ...
+    ) -> Trial: ...
     def step(self, n: int = 1, *, stop_at_finish: bool = False) -> int:
         """Advance ``n`` simulator steps (GIL released); return the steps taken."""
     @property
@@ -96,7 +100,7 @@ class Simulation:
         """Completed simulator steps."""
     @property
     def num_threads(self) -> int:
-        """Worker threads of this simulation's pool."""
+        """Worker threads of this trial's pool."""
     @property
     def time_limit(self) -> float:
         """Simulated time after which ``run_trial`` gives up (s)."""
@@ -138,13 +142,13 @@ class Simulation:
     def set_state(self, state: bytes) -> None:
         """Replace the whole state with one from ``get_state``."""
     @staticmethod
-    def from_state(state: bytes, num_threads: int | None = None) -> Simulation:
-        """A simulation continuing from ``state``."""
+    def from_state(state: bytes, num_threads: int | None = None) -> Trial:
+        """A trial continuing from ``state``."""
     def save(self, path: str | os.PathLike[str]) -> None:
         """Write the state to ``path`` atomically."""
     @staticmethod
-    def load(path: str | os.PathLike[str], num_threads: int | None = None) -> Simulation:
-        """A simulation continuing from a state file."""
+    def load(path: str | os.PathLike[str], num_threads: int | None = None) -> Trial:
+        """A trial continuing from a state file."""
     def __reduce__(self) -> tuple[Any, ...]: ...
 
 @final

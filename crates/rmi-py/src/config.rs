@@ -1,14 +1,15 @@
-//! Trial configurations from Python: dicts, JSON text or JSON files, checked field by field
-//! against the shape of the default `TrialConfig` so that errors name the dotted field.
+//! Configurations from Python: dicts, JSON text or JSON files. Trial configs are checked field
+//! by field against the shape of the default `TrialConfig` so that errors name the dotted
+//! field; engine configs (`SimConfig`) go through the engine's own JSON parser.
 //!
-//! Conversion only: ranges and physics checks are the core's `TrialConfig::validate`.
+//! Conversion only: ranges and physics checks are the core's `validate` methods.
 
 use crate::errors::to_pyerr;
 use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
 use rmi_sph::presets::SPONGE_SIZES;
-use rmi_sph::{RmiError, TrialConfig};
+use rmi_sph::{RmiError, SimConfig, TrialConfig};
 use serde_json::{Map, Number, Value};
 
 /// Converts a Python object (dict, list, tuple, number, bool, str, None, numpy scalar or
@@ -158,31 +159,54 @@ pub fn from_value(given: &Value) -> Result<TrialConfig, RmiError> {
     Ok(cfg)
 }
 
+/// Where a config comes from: a dict, as JSON, or JSON text (given, or read from a file).
+enum Source {
+    Value(Value),
+    Text(String),
+}
+
+/// A dict, a JSON file path (str or os.PathLike) or JSON text (a str starting with `{`).
+fn source(obj: &Bound<'_, PyAny>) -> PyResult<Source> {
+    if obj.is_instance_of::<PyDict>() {
+        return Ok(Source::Value(to_value(obj, "")?));
+    }
+    let text = if let Ok(s) = obj.cast::<PyString>() {
+        let s = s.to_str()?;
+        if s.trim_start().starts_with('{') {
+            s.to_owned()
+        } else {
+            read(s)?
+        }
+    } else if obj.hasattr("__fspath__")? {
+        let p: String = obj.call_method0("__fspath__")?.extract()?;
+        read(&p)?
+    } else {
+        return Err(PyTypeError::new_err(format!(
+            "config must be a dict, a JSON string or a path to a JSON file, not {}",
+            obj.get_type().name()?
+        )));
+    };
+    Ok(Source::Text(text))
+}
+
 /// A trial config from a dict, a JSON file path (str or os.PathLike) or JSON text.
 pub fn extract(obj: &Bound<'_, PyAny>) -> PyResult<TrialConfig> {
-    let value = if obj.is_instance_of::<PyDict>() {
-        to_value(obj, "")?
-    } else {
-        let text = if let Ok(s) = obj.cast::<PyString>() {
-            let s = s.to_str()?;
-            if s.trim_start().starts_with('{') {
-                s.to_owned()
-            } else {
-                read(s)?
-            }
-        } else if obj.hasattr("__fspath__")? {
-            let p: String = obj.call_method0("__fspath__")?.extract()?;
-            read(&p)?
-        } else {
-            return Err(PyTypeError::new_err(format!(
-                "config must be a dict, a JSON string or a path to a JSON file, not {}",
-                obj.get_type().name()?
-            )));
-        };
-        serde_json::from_str(&text)
-            .map_err(|e| to_pyerr(RmiError::config("trial", e.to_string(), "valid JSON text of a TrialConfig")))?
+    let value = match source(obj)? {
+        Source::Value(v) => v,
+        Source::Text(text) => serde_json::from_str(&text)
+            .map_err(|e| to_pyerr(RmiError::config("trial", e.to_string(), "valid JSON text of a TrialConfig")))?,
     };
     from_value(&value).map_err(to_pyerr)
+}
+
+/// An engine config from a dict, a JSON file path or JSON text, parsed and validated by
+/// `SimConfig::from_json` (so errors name the field exactly as in Rust).
+pub fn extract_sim(obj: &Bound<'_, PyAny>) -> PyResult<SimConfig> {
+    let text = match source(obj)? {
+        Source::Value(v) => v.to_string(),
+        Source::Text(text) => text,
+    };
+    SimConfig::from_json(&text).map_err(to_pyerr)
 }
 
 fn read(path: &str) -> PyResult<String> {
@@ -190,9 +214,19 @@ fn read(path: &str) -> PyResult<String> {
         .map_err(|e| to_pyerr(RmiError::Io(std::io::Error::new(e.kind(), format!("{path}: {e}")))))
 }
 
-/// A config as a Python dict (through JSON, so it round-trips exactly).
+/// JSON text as Python objects (floats round-trip exactly).
+fn json_dict<'py>(py: Python<'py>, text: &str) -> PyResult<Bound<'py, PyAny>> {
+    py.import("json")?.call_method1("loads", (text,))
+}
+
+/// A trial config as a Python dict (through JSON, so it round-trips exactly).
 pub fn to_dict<'py>(py: Python<'py>, cfg: &TrialConfig) -> PyResult<Bound<'py, PyAny>> {
-    py.import("json")?.call_method1("loads", (cfg.to_json(),))
+    json_dict(py, &cfg.to_json())
+}
+
+/// An engine config as a Python dict (through JSON, so it round-trips exactly).
+pub fn sim_to_dict<'py>(py: Python<'py>, cfg: &SimConfig) -> PyResult<Bound<'py, PyAny>> {
+    json_dict(py, &cfg.to_json())
 }
 
 /// Names of the `ControllerParams` fields (accepted as top-level overrides).

@@ -1,15 +1,18 @@
-//! Observations, recorded trajectories and outcomes as Python dicts and numpy arrays.
+//! Observations, recorded trajectories, outcomes, particles and bodies as Python dicts and
+//! numpy arrays.
 //!
 //! Column layout of a trajectory = the run-file columns of `python/rmi_learn/CONTRACT.md`:
 //! `EXTRAS` (time, phase, v_com_x/y/z, gate_open, M_expelled, lift_height), the 23 `OBS`
 //! names of y_t, then `ACTIONS` (F_target, v_cmd).
 
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
-use rmi_sph::controller::Phase;
-use rmi_sph::observe::{Observation, NAMES};
-use rmi_sph::trial::Outcome;
+use rmi_sph::config::Shape;
+use rmi_sph::Simulation;
+// The robot layer's types.
+use rmi_sph::{controller::Phase, observe::Observation, observe::NAMES, trial::Outcome};
 
 /// Recorded quantities outside y_t, in run-file order.
 pub const EXTRAS: [&str; 8] =
@@ -104,4 +107,117 @@ where
 {
     let flat: Vec<f64> = v.iter().flat_map(|x| [x[0], x[1], x[2]]).collect();
     PyArray1::from_vec(py, flat).reshape([v.len(), 3])
+}
+
+/// The particle sets of a simulation, as `particles(kind)` reads them.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    /// Free and pore water.
+    Fluid,
+    /// Porous skeletons (the sponges).
+    Skeleton,
+    /// Boundary particles of the rigid bodies.
+    Boundary,
+}
+
+/// The kind named `name`, given the names a class uses for fluid, skeleton and boundary
+/// particles; a `ValueError` listing them otherwise.
+pub fn kind(name: &str, names: [&str; 3]) -> PyResult<Kind> {
+    match names.iter().position(|n| *n == name) {
+        Some(0) => Ok(Kind::Fluid),
+        Some(1) => Ok(Kind::Skeleton),
+        Some(2) => Ok(Kind::Boundary),
+        _ => Err(PyValueError::new_err(format!(
+            "unknown particle kind {name:?}; expected '{}', '{}' or '{}'",
+            names[0], names[1], names[2]
+        ))),
+    }
+}
+
+/// Particle data of one kind as a dict of numpy arrays (SI units).
+///
+/// Fluid: positions (N, 3) m, velocities (N, 3) m/s, mass kg, density kg/m^3, pressure Pa,
+/// porosity (local, -), skeleton_cover (-), retained (part inside a sponge's deformed volume,
+/// -), id. Skeleton: positions, velocities, mass, density (bulk, dry), pressure, porosity
+/// (current local), saturation (-), rest_positions (m), id. Boundary: positions, velocities,
+/// volume m^3, body (index into the bodies).
+pub fn particles<'py>(py: Python<'py>, sim: &Simulation, kind: Kind) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    let p = sim.particles();
+    let nf = p.n_fluid;
+    let range = match kind {
+        Kind::Fluid => 0..nf,
+        Kind::Skeleton => nf..p.len(),
+        Kind::Boundary => {
+            let b = sim.boundary();
+            d.set_item("positions", vec3_array(py, &b.x)?)?;
+            d.set_item("velocities", vec3_array(py, &b.v)?)?;
+            d.set_item("volume", PyArray1::from_vec(py, b.volume.clone()))?;
+            d.set_item("body", PyArray1::from_vec(py, b.body.iter().map(|&x| x as i32).collect::<Vec<_>>()))?;
+            return Ok(d);
+        }
+    };
+    let f = sim.fields();
+    let field = |v: &[f64]| -> Vec<f64> { range.clone().map(|a| v.get(a).copied().unwrap_or(f64::NAN)).collect() };
+    let pressure = sim.pressure();
+    let density: Vec<f64> = {
+        let objects = sim.objects();
+        range
+            .clone()
+            .map(|a| {
+                let rho0 = if a < nf {
+                    sim.config().fluid.density
+                } else {
+                    (p.material[a] as usize)
+                        .checked_sub(1)
+                        .and_then(|k| objects.get(k))
+                        .map_or(f64::NAN, |o| o.material.dry_density)
+                };
+                rho0 * f.rho_ratio.get(a).copied().unwrap_or(f64::NAN)
+            })
+            .collect()
+    };
+    d.set_item("positions", vec3_array(py, &p.x[range.clone()])?)?;
+    d.set_item("velocities", vec3_array(py, &p.v[range.clone()])?)?;
+    d.set_item("mass", PyArray1::from_vec(py, p.mass[range.clone()].to_vec()))?;
+    d.set_item("density", PyArray1::from_vec(py, density))?;
+    d.set_item("pressure", PyArray1::from_vec(py, field(&pressure)))?;
+    d.set_item("porosity", PyArray1::from_vec(py, field(&f.porosity)))?;
+    if kind == Kind::Fluid {
+        d.set_item("skeleton_cover", PyArray1::from_vec(py, field(&f.skeleton_cover)))?;
+        let mut inside = sim.retained();
+        inside.resize(nf, 0.0);
+        d.set_item("retained", PyArray1::from_vec(py, inside))?;
+    } else {
+        d.set_item("saturation", PyArray1::from_vec(py, field(&f.saturation)))?;
+        d.set_item("rest_positions", vec3_array(py, &sim.rest().x0)?)?;
+    }
+    d.set_item("id", PyArray1::from_vec(py, p.id[range].to_vec()))?;
+    Ok(d)
+}
+
+/// The rigid bodies as a list of dicts: name, shape (`"box"` or `"container"`), half_extents
+/// (m), position (m), rotation (unit quaternion `(w, x, y, z)`), velocity (m/s), kinematic
+/// (bool), force (N, from the last step).
+pub fn bodies<'py>(py: Python<'py>, sim: &Simulation) -> PyResult<Bound<'py, PyList>> {
+    let out = PyList::empty(py);
+    for b in &sim.boundary().bodies {
+        let d = PyDict::new(py);
+        let (shape, he) = match &b.shape {
+            Shape::Box { half_extents } => ("box", half_extents),
+            Shape::Container { half_extents } => ("container", half_extents),
+        };
+        let s = &b.state;
+        let q = s.rotation.quaternion();
+        d.set_item("name", &b.name)?;
+        d.set_item("shape", shape)?;
+        d.set_item("half_extents", (he[0], he[1], he[2]))?;
+        d.set_item("position", (s.position[0], s.position[1], s.position[2]))?;
+        d.set_item("rotation", (q.w, q.i, q.j, q.k))?;
+        d.set_item("velocity", (s.velocity[0], s.velocity[1], s.velocity[2]))?;
+        d.set_item("kinematic", b.kinematic)?;
+        d.set_item("force", (b.force[0], b.force[1], b.force[2]))?;
+        out.append(d)?;
+    }
+    Ok(out)
 }

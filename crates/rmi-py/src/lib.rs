@@ -2,16 +2,20 @@
 //!
 //! Kept thin on purpose: physics, validation and error texts live in the `rmi-sph` crate, and
 //! this crate only converts types and errors (one module per concern: `config` for configs
-//! from Python, `convert` for observations/columns/outcomes, `sim` for the `Simulation`
-//! class, `run` for `run_trial`, `panic` keeps Rust panics out of Python, `errors` maps the
-//! core's errors to exceptions). The Python package `rmi_sph` re-exports it.
+//! from Python, `convert` for observations/columns/outcomes/particles, `trial` for the
+//! `Trial` class, `engine` for the submodule `rmi_sph.engine` with the engine's own
+//! `Simulation`, `held` for what both classes share (fork safety, state, stepping), `run` for
+//! `run_trial`, `panic` keeps Rust panics out of Python, `errors` maps the core's errors to
+//! exceptions). The Python package `rmi_sph` re-exports it.
 
 mod config;
 mod convert;
+mod engine;
 mod errors;
+mod held;
 mod panic;
 mod run;
-mod sim;
+mod trial;
 mod wm;
 
 use pyo3::exceptions::PyValueError;
@@ -71,7 +75,7 @@ fn _raise_error(kind: &str) -> PyResult<()> {
 /// Parameters
 /// ----------
 /// config : dict | str | os.PathLike
-///     Trial configuration (see ``Simulation``).
+///     Trial configuration (see ``Trial``).
 /// num_threads : int, optional
 ///     Worker threads (results do not depend on it).
 /// record_every : int, optional
@@ -84,7 +88,7 @@ fn _raise_error(kind: &str) -> PyResult<()> {
 ///     ``v_com_x/y/z`` m/s, ``gate_open`` bool, ``M_expelled`` kg, ``lift_height`` m, the 23
 ///     y_t channels of ``OBSERVATION_NAMES``, ``F_target`` N, ``v_cmd`` m/s); one row at the
 ///     start, one every ``record_every`` steps and one at the end, loads averaged over each
-///     interval. ``outcome``: dict as ``Simulation.outcome()``.
+///     interval. ``outcome``: dict as ``Trial.outcome()``.
 ///
 /// Raises
 /// ------
@@ -169,8 +173,7 @@ fn _rmi_sph(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("ACTION_NAMES", PyTuple::new(py, convert::ACTIONS)?)?;
     // The robot's physical limits and the paper's sponges, so Python never restates them.
     m.add("FORCE_LIMIT_N", rmi_sph::controller::FORCE_LIMIT)?;
-    let sizes: Vec<(f64, f64, f64)> =
-        rmi_sph::presets::SPONGE_SIZES.iter().map(|s| (s[0], s[1], s[2])).collect();
+    let sizes: Vec<(f64, f64, f64)> = rmi_sph::presets::SPONGE_SIZES.iter().map(|s| (s[0], s[1], s[2])).collect();
     m.add("SPONGE_SIZES_M", PyTuple::new(py, sizes)?)?;
     m.add_function(wrap_pyfunction!(engine_info, m)?)?;
     m.add_function(wrap_pyfunction!(_raise_error, m)?)?;
@@ -178,7 +181,11 @@ fn _rmi_sph(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(trial_config, m)?)?;
     m.add_function(wrap_pyfunction!(default_config, m)?)?;
     m.add_function(wrap_pyfunction!(validate_config, m)?)?;
-    m.add_class::<sim::PySimulation>()?;
+    m.add_class::<trial::PyTrial>()?;
+    // The trial's previous name, outside `__all__`: pickles of that version name the class
+    // `rmi_sph._rmi_sph.Simulation`, and the package's deprecated `rmi_sph.Simulation` is this.
+    m.setattr("Simulation", py.get_type::<trial::PyTrial>())?;
+    engine::register(m)?;
     m.add_class::<wm::PyGruForecaster>()?;
     errors::register(m)?;
     Ok(())
