@@ -18,7 +18,7 @@ import json
 import time
 
 import rmi_sph
-from rmi_learn.sweep import load_grid
+from rmi_learn.data.sweep import load_grid
 
 # Simulated time the controller spends closing and lifting (s); the other phases have fixed
 # durations in the config.

@@ -13,8 +13,8 @@ import numpy as np
 import polars as pl
 import pytest
 
-from rmi_learn import analysis
-from rmi_learn.analysis import (
+from rmi_learn.analysis import physical as analysis
+from rmi_learn.analysis.physical import (
     FIGURES,
     JSON_FILE,
     AnalysisError,
@@ -25,8 +25,8 @@ from rmi_learn.analysis import (
     water_per_phase,
 )
 from rmi_learn.cli import main as cli_main
-from rmi_learn.runs import write_error
-from rmi_learn.sweep import INDEX_SCHEMA, build_index
+from rmi_learn.data.runs import write_error
+from rmi_learn.data.sweep import INDEX_SCHEMA, build_index
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

@@ -22,8 +22,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import rmi_sph
-from rmi_learn.runs import RUN_COLUMNS, read_run, write_run
-from rmi_learn.schema import ACTIONS, EXTRAS, OBS, PHASES
+from rmi_learn.data.runs import RUN_COLUMNS, read_run, write_run
+from rmi_learn.data.schema import ACTIONS, EXTRAS, OBS, PHASES
 from tiny_trial import tiny_config
 
 

@@ -64,7 +64,7 @@ def test_a_locked_sweep_directory_is_status_1_not_bad_input(
 ) -> None:
     """Valid input that cannot run now (another sweep writes the directory) is status 1."""
     fcntl = pytest.importorskip("fcntl")
-    from rmi_learn.sweep import LOCK_FILE
+    from rmi_learn.data.sweep import LOCK_FILE
 
     out = tmp_path / "sweep"
     out.mkdir()
@@ -81,8 +81,8 @@ def test_a_damaged_run_drawn_by_analyze_is_named_not_a_traceback(
 ) -> None:
     """`rmi analyze` of a sweep reads the index, then one run file for Fig. 4: when that file
     is damaged the command names it and how to rerun it."""
-    from rmi_learn.sweep import build_index
-    from rmi_learn.synthetic import write_synthetic_runs
+    from rmi_learn.data.sweep import build_index
+    from rmi_learn.data.synthetic import write_synthetic_runs
 
     sweep = tmp_path / "sweep"
     write_synthetic_runs(sweep / "runs", n_per_size=4, seed=0)
@@ -108,7 +108,7 @@ def test_a_damaged_run_drawn_by_analyze_is_named_not_a_traceback(
 def test_input_errors_and_ctrl_c_end_the_command_and_bugs_keep_their_traceback(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], exc: Exception
 ) -> None:
-    module = importlib.import_module("rmi_learn.commands.report")
+    module = importlib.import_module("rmi_learn.cli.report")
 
     def fail(args: argparse.Namespace) -> int:
         raise exc
@@ -162,7 +162,7 @@ def test_numeric_options_are_checked_when_parsed(
 
 
 def test_number_types() -> None:
-    from rmi_learn.commands.argtypes import count, positive, real
+    from rmi_learn.cli.argtypes import count, positive, real
 
     assert count(0)("0") == 0 and count(1)("7") == 7
     assert positive("1e-4") == 1e-4 and real(0.0, 1.0, high_open=True)("0") == 0.0

@@ -22,7 +22,10 @@ import pytest
 
 import rmi_sph
 from rmi_learn.cli import main
-from rmi_learn.closed_loop import (
+from rmi_learn.data.runs import RUN_COLUMNS, read_run, write_run
+from rmi_learn.data.schema import CONTROL_DT
+from rmi_learn.data.sweep import RunSpec, run_sweep
+from rmi_learn.policies.closed_loop import (
     WINDOWS_FILE,
     RunTrack,
     Window,
@@ -30,9 +33,6 @@ from rmi_learn.closed_loop import (
     load_track,
     run_closed_loop,
 )
-from rmi_learn.runs import RUN_COLUMNS, read_run, write_run
-from rmi_learn.schema import CONTROL_DT
-from rmi_learn.sweep import RunSpec, run_sweep
 from tiny_trial import TINY
 
 PARAMS: dict[str, Any] = {

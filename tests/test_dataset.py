@@ -14,7 +14,7 @@ import polars as pl
 import pytest
 
 from rmi_learn.cli import main as cli_main
-from rmi_learn.dataset import (
+from rmi_learn.data.dataset import (
     CATEGORICAL,
     Stats,
     build_dataset,
@@ -24,7 +24,7 @@ from rmi_learn.dataset import (
     resample_run,
     select_learning_rows,
 )
-from rmi_learn.runs import (
+from rmi_learn.data.runs import (
     RUN_COLUMNS,
     RunFileError,
     atomic_write_bytes,
@@ -35,8 +35,8 @@ from rmi_learn.runs import (
     scan_runs,
     write_run,
 )
-from rmi_learn.schema import ACTIONS, CONTINUOUS, CONTINUOUS_INDEX, LEARNING_PHASES, OBS
-from rmi_learn.synthetic import simulate_toy_run
+from rmi_learn.data.schema import ACTIONS, CONTINUOUS, CONTINUOUS_INDEX, LEARNING_PHASES, OBS
+from rmi_learn.data.synthetic import simulate_toy_run
 
 torch = pytest.importorskip("torch")
 torch.set_num_threads(1)

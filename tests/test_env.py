@@ -1,4 +1,4 @@
-"""The Gymnasium environment rmi_learn.env.SpongeSqueezeEnv on a tiny sponge."""
+"""The Gymnasium environment rmi_learn.sim.env.SpongeSqueezeEnv on a tiny sponge."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from rmi_learn.env import ENV_ID, SpongeSqueezeEnv
-from rmi_learn.schema import OBS
+from rmi_learn.data.schema import OBS
+from rmi_learn.sim.env import ENV_ID, SpongeSqueezeEnv
 from tiny_trial import tiny_config
 
 

@@ -13,8 +13,8 @@ from typing import Any
 import pytest
 
 from rmi_learn import cli, pipeline
+from rmi_learn.analysis.report import Doc, write_report
 from rmi_learn.pipeline import PipelineError, load_preset, run_pipeline
-from rmi_learn.report import Doc, write_report
 
 STAGE_ORDER = [
     "sweep",
@@ -163,7 +163,7 @@ def test_report_puts_our_numbers_beside_the_papers(tmp_path: Path) -> None:
     assert "| paper: Original controller action | 2.56 | 4.23 | 4.68 |" in text
     assert "| paper: Flow matching + W_T | 1.11 | 2.24 | 2.45 |" in text
     assert "| 8 cm | 4.00 | 2.00 |" in text and "Replay fidelity: fine." in text
-    from rmi_learn.report import _closed_loop_means
+    from rmi_learn.analysis.report import _closed_loop_means
 
     cl = json.loads((tmp_path / "closed_loop" / "table_closed_loop.json").read_text())
     assert _closed_loop_means(cl) == {

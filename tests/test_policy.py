@@ -9,15 +9,15 @@ import pytest
 import torch
 from torch import Tensor, nn
 
-from rmi_learn.policy.diffusion import (
+from rmi_learn.policies.diffusion import (
     DiffusionObjective,
     cosine_alpha_bar,
     ddim_step_pairs,
     min_snr_weight,
 )
-from rmi_learn.policy.ema import EMA, ema_decay
-from rmi_learn.policy.flow import FlowObjective, euler_integrate, interpolate
-from rmi_learn.policy.unet import PolicyUNet, UNetConfig, count_parameters, sinusoidal_embedding
+from rmi_learn.policies.ema import EMA, ema_decay
+from rmi_learn.policies.flow import FlowObjective, euler_integrate, interpolate
+from rmi_learn.policies.unet import PolicyUNet, UNetConfig, count_parameters, sinusoidal_embedding
 
 torch.set_num_threads(1)
 
@@ -310,8 +310,8 @@ def test_briefly_trained_policy_samples_beat_noise(
 ) -> None:
     """A small UNet trained for a few seconds on the synthetic windows must sample chunks
     much closer to the held-out validation chunks than the noise it starts from."""
-    from rmi_learn.dataset import load_dataset
-    from rmi_learn.policy.checkpoint import goal_from_batch, make_objective
+    from rmi_learn.data.dataset import load_dataset
+    from rmi_learn.policies.checkpoint import goal_from_batch, make_objective
 
     torch.manual_seed(0)
     ds = load_dataset(synthetic_dataset_dir)  # type: ignore[arg-type]

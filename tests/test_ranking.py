@@ -14,9 +14,9 @@ import pytest
 import torch
 from torch import Tensor
 
-from rmi_learn.policy.diffusion import DiffusionObjective
-from rmi_learn.policy.flow import FlowObjective
-from rmi_learn.policy.ranking import (
+from rmi_learn.policies.diffusion import DiffusionObjective
+from rmi_learn.policies.flow import FlowObjective
+from rmi_learn.policies.ranking import (
     CostWeights,
     Planner,
     Standardiser,
@@ -24,7 +24,7 @@ from rmi_learn.policy.ranking import (
     cost_terms,
     jerk,
 )
-from rmi_learn.policy.unet import PolicyUNet, UNetConfig
+from rmi_learn.policies.unet import PolicyUNet, UNetConfig
 
 torch.set_num_threads(1)
 

@@ -1,7 +1,7 @@
 """Sweep machinery: grids, resumable idempotent runs, failures, kill -9 recovery, index, Ray.
 
 The engine's ``rmi_sph.run_trial`` is replaced by TEST DOUBLES defined here (``fake_runner``,
-``fake_make_config``): they return the toy ODE trial of ``rmi_learn.synthetic`` with the exact
+``fake_make_config``): they return the toy ODE trial of ``rmi_learn.data.synthetic`` with the exact
 run-file columns, and fail on purpose for some parameters. An end-to-end test with the real
 engine belongs next to the engine's trial runner.
 """
@@ -23,8 +23,8 @@ import polars as pl
 import pytest
 
 from rmi_learn.cli import main as cli_main
-from rmi_learn.runs import iter_run_files, read_run, run_path, scan_runs
-from rmi_learn.sweep import (
+from rmi_learn.data.runs import iter_run_files, read_run, run_path, scan_runs
+from rmi_learn.data.sweep import (
     FORCE_LIMIT,
     INDEX_FILE,
     RUNS_SUBDIR,
@@ -35,7 +35,7 @@ from rmi_learn.sweep import (
     run_sweep,
     validate_grid,
 )
-from rmi_learn.synthetic import simulate_toy_run
+from rmi_learn.data.synthetic import simulate_toy_run
 
 TESTS = Path(__file__).resolve().parent
 FAIL_HOLD = 50.0  # the double raises RuntimeError for this holding force
@@ -137,7 +137,7 @@ def test_presets() -> None:
     assert 1 < len(expand_grid(tiny)) < len(expand_grid(quick)) < 594
     assert quick["radius_m"] > paper["radius_m"] and tiny["radius_m"] >= quick["radius_m"]
     # A preset is a file: the same file through path= gives the same grid.
-    import rmi_learn.grids as g
+    import rmi_learn.data.grids as g
 
     assert load_grid(path=Path(g.__file__).parent / "quick.json") == quick
 

@@ -8,9 +8,9 @@ from pathlib import Path
 import polars as pl
 import pytest
 
-from rmi_learn import schema
-from rmi_learn.runs import read_run
-from rmi_learn.sweep import expand_grid, load_grid, run_sweep
+from rmi_learn.data import schema
+from rmi_learn.data.runs import read_run
+from rmi_learn.data.sweep import expand_grid, load_grid, run_sweep
 
 
 def test_tiny_preset_runs_with_the_engine_and_resumes(tmp_path: Path) -> None:

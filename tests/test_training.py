@@ -1,4 +1,4 @@
-"""Tests of the generic training loop (rmi_learn.training)."""
+"""Tests of the generic training loop (rmi_learn.trainer)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from rmi_learn.training import (
+from rmi_learn.trainer import (
     EMA,
     Hook,
     TrainConfig,

@@ -1,4 +1,4 @@
-"""ParaView output (rmi_learn.vtk) and the `rmi simulate` command."""
+"""ParaView output (rmi_learn.sim.vtk) and the `rmi simulate` command."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import pytest
 
 import rmi_sph
 from rmi_learn.cli import main
-from rmi_learn.runs import RUN_COLUMNS, read_run
-from rmi_learn.vtk import FrameWriter, polydata_xml, read_vtp_arrays, write_vtp
+from rmi_learn.data.runs import RUN_COLUMNS, read_run
+from rmi_learn.sim.vtk import FrameWriter, polydata_xml, read_vtp_arrays, write_vtp
 from tiny_trial import tiny_config
 
 

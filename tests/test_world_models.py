@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 import torch
 
-from rmi_learn.models import MODELS, build, load, wm_loss
-from rmi_learn.models.arx import LinearARX
-from rmi_learn.models.common import (
+from rmi_learn.data.schema import CONTACT_INDEX, CONTINUOUS_INDEX, FRICTION_SLICE, OBS
+from rmi_learn.world_models import MODELS, build, load, wm_loss
+from rmi_learn.world_models.arx import LinearARX
+from rmi_learn.world_models.common import (
     FORCE,
     GROUP_SETS,
     STATE_GROUPS,
@@ -23,8 +24,7 @@ from rmi_learn.models.common import (
     obs_keep,
     shuffled_pairing,
 )
-from rmi_learn.schema import CONTACT_INDEX, CONTINUOUS_INDEX, FRICTION_SLICE, OBS
-from rmi_learn.wm_eval import RolloutMetrics, balanced_accuracy
+from rmi_learn.world_models.evaluation import RolloutMetrics, balanced_accuracy
 
 torch.set_num_threads(1)
 
@@ -220,7 +220,7 @@ def test_native_gru_rollout_is_used_and_independent_of_threads(
 
 def test_native_gru_forecaster_rejects_bad_weights_and_inputs() -> None:
     import rmi_sph
-    from rmi_learn.models.common import ASSEMBLE_INDEX
+    from rmi_learn.world_models.common import ASSEMBLE_INDEX
 
     model: Any = build({"kind": "ac-gru"})
     state = {k: v.detach().numpy() for k, v in model.state_dict().items()}
@@ -610,8 +610,8 @@ def test_channel_scale_measures_each_error_against_its_channel() -> None:
 def test_loss_scale_change_is_the_mlp_default_stores_the_scale_and_is_fixed_on_resume(
     synthetic_dataset_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from rmi_learn.commands.train_wm import DEBUG_TRAIN_WINDOWS, _subset
-    from rmi_learn.dataset import load_dataset
+    from rmi_learn.data.dataset import load_dataset
+    from rmi_learn.world_models.training import DEBUG_TRAIN_WINDOWS, _subset
 
     out = tmp_path / "mlp"
     base = ("train-wm", "--model", "ac-mlp", "--data", str(synthetic_dataset_dir))
@@ -642,7 +642,7 @@ def test_huber_delta_reaches_the_loss_and_is_fixed_on_resume(
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    import rmi_learn.models.common as common
+    import rmi_learn.world_models.common as common
 
     seen: list[float] = []
     real = common.wm_loss
@@ -770,8 +770,8 @@ class ToyWindows:
 def test_ac_gru_learns_the_action_effect(tmp_path: Path) -> None:
     """AC-GRU-WM must beat the Baseline by > 60 % on water, and lose most of that edge when
     trained and tested with shuffled chunks (or without actions: State-GRU-WM)."""
-    from rmi_learn.training import TrainConfig, Trainer
-    from rmi_learn.wm_eval import evaluate_rollouts
+    from rmi_learn.trainer import TrainConfig, Trainer
+    from rmi_learn.world_models.evaluation import evaluate_rollouts
 
     train, test = ToyWindows(1024, seed=0), ToyWindows(256, seed=1)
     unit = np.ones(18)  # standardised units; water "g" = 1000 x standardised error
@@ -809,7 +809,7 @@ def test_gru_inference_stays_in_torch_without_avx2() -> None:
 
     code = (
         "import torch, rmi_sph\n"
-        "from rmi_learn.models import build\n"
+        "from rmi_learn.world_models import build\n"
         "assert not rmi_sph.GruForecaster.accelerated()\n"
         "m = build({'kind': 'ac-gru'}).eval()\n"
         "with torch.no_grad():\n"
@@ -827,7 +827,7 @@ def test_one_native_forecaster_serves_several_python_threads() -> None:
     from concurrent.futures import ThreadPoolExecutor
 
     import rmi_sph
-    from rmi_learn.models.common import ASSEMBLE_INDEX
+    from rmi_learn.world_models.common import ASSEMBLE_INDEX
 
     torch.manual_seed(2)
     model: Any = build({"kind": "ac-gru"})
