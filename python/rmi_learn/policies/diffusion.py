@@ -1,6 +1,6 @@
 """Diffusion Policy objective: cosine schedule, x0 prediction, min-SNR weights, DDIM sampling.
 
-Conventions (pinned by ``tests/test_policy.py``):
+Conventions (pinned by ``tests/policies/test_policy.py``):
 
 - 50 training steps ``t = 0..49`` with the cosine ("squaredcos_cap_v2") schedule;
   ``abar[t]`` is the cumulative product of ``1 - beta``; ``abar(-1) = 1`` (clean data).

@@ -8,7 +8,7 @@ the live weights and the average forgets the initialisation quickly.
 
 The averaging itself is the shared training loop's hook :class:`rmi_learn.trainer.EMA`
 (re-exported here) so the policy and the world models use one implementation;
-:func:`ema_decay` states the formula and ``tests/test_policy.py`` pins the hook to it. The
+:func:`ema_decay` states the formula and ``tests/policies/test_policy.py`` pins the hook to it. The
 policy trainer computes the validation loss with the live weights and samples, selects and
 saves checkpoints with the EMA weights (``model.ema.safetensors``).
 """

@@ -1,6 +1,6 @@
 """Rectified-flow (flow-matching) objective on the shared :class:`PolicyUNet`.
 
-Convention (pinned by ``tests/test_policy.py``; pi0/openpi use the opposite direction):
+Convention (pinned by ``tests/policies/test_policy.py``; pi0/openpi use the opposite direction):
 ``t = 0`` is noise and ``t = 1`` is data, ``x_t = (1 - t) eps + t A``, the network regresses
 the constant velocity ``A - eps``, and sampling integrates ``dx/dt = v(x, t)`` with 20
 explicit Euler steps from ``t = 0`` to ``t = 1``. The network receives ``t * 1000`` so that

@@ -24,8 +24,8 @@ import pytest
 
 from rmi_learn.cli import main as cli_main
 from rmi_learn.data.runs import iter_run_files, read_run, run_path, scan_runs
+from rmi_learn.data.schema import FORCE_LIMIT_N
 from rmi_learn.data.sweep import (
-    FORCE_LIMIT,
     INDEX_FILE,
     RUNS_SUBDIR,
     build_index,
@@ -132,7 +132,7 @@ def test_presets() -> None:
     assert paper["sizes_cm"] == [8, 10, 12] and paper["porosities"] == [0.5, 0.6, 0.7]
     assert len(paper["hold_forces_N"]) == 11 and len(paper["squeeze_forces_N"]) == 6
     assert min(paper["hold_forces_N"]) <= 20 and max(paper["hold_forces_N"]) >= 200
-    assert 280 <= max(paper["squeeze_forces_N"]) <= FORCE_LIMIT
+    assert 280 <= max(paper["squeeze_forces_N"]) <= FORCE_LIMIT_N
     quick, tiny = load_grid("quick"), load_grid("tiny")
     assert 1 < len(expand_grid(tiny)) < len(expand_grid(quick)) < 594
     assert quick["radius_m"] > paper["radius_m"] and tiny["radius_m"] >= quick["radius_m"]

@@ -9,7 +9,7 @@ from types import ModuleType
 
 from packaging.requirements import Requirement
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def load_tool() -> ModuleType:

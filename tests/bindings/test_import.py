@@ -14,7 +14,7 @@ import pytest
 
 import rmi_sph
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def workspace_version() -> str:
