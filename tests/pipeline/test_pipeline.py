@@ -122,7 +122,7 @@ def test_recorded_command_lines(tmp_path: Path) -> None:
     wm = {c.argv[c.argv.index("--out") + 1]: c.argv for c in stages["ablations"].calls()}
     shuffled = wm[str(tmp_path / "wm" / "ac-gru-shuffled")]
     assert shuffled[:4] == ["train-wm", "--model", "ac-gru", "--shuffle-actions"]
-    assert shuffled[-6:] == ["--epochs", "1", "--debug", "--threads", "3", "--no-progress"]
+    assert shuffled[-6:] == ["--debug", "--epochs", "1", "--threads", "3", "--no-progress"]
     groups = wm[str(tmp_path / "wm" / "ac-gru-LS+G")]
     assert groups[:5] == ["train-wm", "--model", "ac-gru", "--state-groups", "LS+G"]
     (ev,) = stages["eval-wm"].calls()
@@ -203,6 +203,8 @@ def test_training_calls_resume_through_the_library(
         "debug": True,
         "epochs": 1,
     }
+    # The preset's order of the options is kept in the recorded command lines.
+    assert list(load_preset("tiny").world_models.given()) == ["debug", "epochs"]
 
 
 def test_out_dir_is_tied_to_its_preset(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -614,7 +614,7 @@ def test_loss_scale_change_is_the_mlp_default_stores_the_scale_and_is_fixed_on_r
     from rmi_learn.world_models.training import DEBUG_TRAIN_WINDOWS, _subset
 
     out = tmp_path / "mlp"
-    base = ("train-wm", "--model", "ac-mlp", "--data", str(synthetic_dataset_dir))
+    base: tuple[str, ...] = ("train-wm", "--model", "ac-mlp", "--data", str(synthetic_dataset_dir))
     base += ("--out", str(out), "--debug", "--no-progress")
     assert _cli(*base) == 0
     extra = json.loads((out / "config.json").read_text())["extra"]
@@ -653,7 +653,7 @@ def test_huber_delta_reaches_the_loss_and_is_fixed_on_resume(
 
     monkeypatch.setattr(common, "wm_loss", spy)
     out = tmp_path / "mlp"
-    base = ("train-wm", "--model", "ac-mlp", "--data", str(synthetic_dataset_dir))
+    base: tuple[str, ...] = ("train-wm", "--model", "ac-mlp", "--data", str(synthetic_dataset_dir))
     base += ("--out", str(out), "--debug", "--no-progress")
     assert _cli(*base, "--huber-delta", "0.05") == 0
     assert seen and set(seen) == {0.05}
@@ -683,7 +683,8 @@ def test_eval_averages_runs_that_differ_only_in_the_seed(
     def table3(*names: str) -> list[dict[str, Any]]:
         out = tmp_path / ("tables-" + "-".join(names))
         runs = [str(tmp_path / n) for n in names]
-        argv = ("eval-wm", "--runs", *runs, "--data", data, "--out", str(out), "--no-latency")
+        argv: tuple[str, ...] = ("eval-wm", "--runs", *runs, "--data", data, "--out", str(out))
+        argv += ("--no-latency",)
         assert _cli(*argv) == 0
         rows: list[dict[str, Any]] = json.loads((out / "table3.json").read_text())["horizons"][
             "0.64 s"

@@ -48,10 +48,13 @@ def _text() -> Any:
 
 @dataclass(frozen=True)
 class StageOptions:
-    """Options a preset sets for one stage; ``None`` fields keep the stage's default."""
+    """Options a preset sets for one stage; ``None`` fields keep the stage's default.
+    ``order`` is the order the preset names them in (its command lines keep it)."""
+
+    order: tuple[str, ...] = field(default=(), compare=False, repr=False)
 
     def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
+        for f in _options(self):
             value = getattr(self, f.name)
             if value is None:
                 continue
@@ -68,22 +71,25 @@ class StageOptions:
     @classmethod
     def from_json(cls, options: Mapping[str, Any], where: str) -> Any:
         """The options of ``options`` (a preset's stage object); ``where`` names it in errors."""
-        known = [f.name for f in dataclasses.fields(cls)]
+        known = [f.name for f in _options(cls)]
         unknown = sorted(set(options) - set(known))
         if unknown:
             raise ValueError(f"{where}: unknown options {unknown} (allowed {known})")
         try:
-            return cls(**options)
+            return cls(**options, order=tuple(options))
         except ValueError as exc:
             raise ValueError(f"{where}: {exc}") from None
 
     def given(self) -> dict[str, Any]:
-        """The options the preset sets, in field order (keyword arguments of the stage)."""
-        return {
-            f.name: getattr(self, f.name)
-            for f in dataclasses.fields(self)
-            if getattr(self, f.name) is not None
-        }
+        """The options the preset sets (keyword arguments of the stage), in its order."""
+        names = [f.name for f in _options(self)]
+        names.sort(key=lambda n: self.order.index(n) if n in self.order else len(self.order))
+        return {n: getattr(self, n) for n in names if getattr(self, n) is not None}
+
+
+def _options(options: Any) -> list[dataclasses.Field[Any]]:
+    """The option fields of a :class:`StageOptions` class or instance."""
+    return [f for f in dataclasses.fields(options) if "kind" in f.metadata]
 
 
 def _name(kind: type | tuple[type, ...]) -> str:

@@ -130,7 +130,7 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
 
     grid = cfg.grid
     grid_args = ["--preset", grid] if grid in PRESETS else ["--grid", grid]
-    grid_kw = {"preset": grid} if grid in PRESETS else {"grid_file": grid}
+    grid_kw: dict[str, Any] = {"preset": grid} if grid in PRESETS else {"grid_file": grid}
     sweep_dir, data = out / "sweep", out / "dataset"
     wm_opts = cfg.world_models.given()
     pol_opts = cfg.policies.given()
@@ -138,34 +138,35 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
     latency = eval_opts.pop("latency", True)
     t = ["--threads", str(threads)]
 
+    def train_wm_call(name: str, run: ModelRun) -> Call:
+        from rmi_learn.world_models import training
+
+        dest = out / "wm" / name
+        resume = _resume(dest)
+        argv = (
+            ["train-wm", *run.flags(), "--data", str(data), "--out", str(dest)]
+            + _flags(wm_opts)
+            + t
+            + ["--no-progress"]
+            + (["--resume"] if resume else [])
+        )
+
+        def call() -> object:
+            return training.train(
+                model=run.model,
+                data=data,
+                out=dest,
+                state_groups=run.state_groups,
+                shuffle_actions=run.shuffle_actions,
+                resume=resume,
+                progress=False,
+                **wm_opts,
+            )
+
+        return Call(argv, call, torch=True)
+
     def train_wm(models: Mapping[str, ModelRun]) -> Callable[[], list[Call]]:
-        def calls() -> list[Call]:
-            from rmi_learn.world_models import training
-
-            return [
-                Call(
-                    ["train-wm", *run.flags(), "--data", str(data), "--out", str(out / "wm" / name)]
-                    + _flags(wm_opts)
-                    + t
-                    + ["--no-progress"]
-                    + (["--resume"] if resume else []),
-                    lambda run=run, name=name, resume=resume: training.train(
-                        model=run.model,
-                        data=data,
-                        out=out / "wm" / name,
-                        state_groups=run.state_groups,
-                        shuffle_actions=run.shuffle_actions,
-                        resume=resume,
-                        progress=False,
-                        **wm_opts,
-                    ),
-                    torch=True,
-                )
-                for name, run in models.items()
-                for resume in [_resume(out / "wm" / name)]
-            ]
-
-        return calls
+        return lambda: [train_wm_call(name, run) for name, run in models.items()]
 
     def eval_wm() -> list[Call]:
         from rmi_learn.world_models import evaluation
@@ -186,25 +187,28 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
 
         return [Call(argv, run, torch=True)]
 
-    def policies() -> list[Call]:
+    def policy_call(obj: str) -> Call:
         from rmi_learn.policies import training
 
-        return [
-            Call(
-                ["train-policy", "--objective", obj, "--data", str(data)]
-                + ["--out", str(out / "policy" / obj)]
-                + _flags(pol_opts)
-                + t
-                + ["--no-progress"]
-                + (["--resume"] if resume else []),
-                lambda obj=obj, resume=resume: training.train_policy(
-                    obj, data, out / "policy" / obj, resume=resume, progress=False, **pol_opts
-                ),
-                torch=True,
+        dest = out / "policy" / obj
+        resume = _resume(dest)
+        argv = (
+            ["train-policy", "--objective", obj, "--data", str(data), "--out", str(dest)]
+            + _flags(pol_opts)
+            + t
+            + ["--no-progress"]
+            + (["--resume"] if resume else [])
+        )
+
+        def call() -> object:
+            return training.train_policy(
+                obj, data, dest, resume=resume, progress=False, **pol_opts
             )
-            for obj in OBJECTIVES
-            for resume in [_resume(out / "policy" / obj)]
-        ]
+
+        return Call(argv, call, torch=True)
+
+    def policies() -> list[Call]:
+        return [policy_call(obj) for obj in OBJECTIVES]
 
     def rank() -> list[Call]:
         from rmi_learn.policies import ranking
@@ -221,7 +225,9 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
         )
 
         def run() -> object:
-            return ranking.rank(data, wm, tables, **pol, **opts)
+            return ranking.rank(
+                data, wm, tables, diffusion=pol["diffusion"], flow=pol["flow"], **opts
+            )
 
         return [Call(argv, run, torch=True)]
 

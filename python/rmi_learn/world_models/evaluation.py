@@ -360,7 +360,7 @@ def write_tables(results: list[dict[str, Any]], out_dir: str | Path) -> dict[str
 
 
 def evaluate_runs(
-    runs: list[str] | list[Path],
+    runs: Sequence[str | Path],
     data: str | Path,
     *,
     split: str = "test",
