@@ -677,13 +677,14 @@ def test_eval_averages_runs_that_differ_only_in_the_seed(
 ) -> None:
     data = str(synthetic_dataset_dir)
     for name, extra in (("s0", []), ("s1", ["--seed", "1"]), ("ww", ["--water-weight", "2"])):
-        argv = ("train-wm", "--model", "ac-mlp", "--data", data, "--out", str(tmp_path / name))
+        argv: tuple[str, ...] = ("train-wm", "--model", "ac-mlp", "--data", data)
+        argv += ("--out", str(tmp_path / name))
         assert _cli(*argv, "--debug", "--no-progress", *extra) == 0
 
     def table3(*names: str) -> list[dict[str, Any]]:
         out = tmp_path / ("tables-" + "-".join(names))
         runs = [str(tmp_path / n) for n in names]
-        argv: tuple[str, ...] = ("eval-wm", "--runs", *runs, "--data", data, "--out", str(out))
+        argv = ("eval-wm", "--runs", *runs, "--data", data, "--out", str(out))
         argv += ("--no-latency",)
         assert _cli(*argv) == 0
         rows: list[dict[str, Any]] = json.loads((out / "table3.json").read_text())["horizons"][
