@@ -115,9 +115,15 @@ class Stage:
     calls: Callable[[], list[Call]]
 
 
-def _resume(run_dir: Path) -> bool:
-    # A training directory with a config but no summary was interrupted: continue it.
-    return (run_dir / "config.json").exists()
+def _training_argv(
+    head: list[str], dest: Path, options: Mapping[str, Any], threads: int
+) -> tuple[list[str], bool]:
+    """The command line of a training call into ``dest`` (``head`` names the command and its
+    inputs) and whether it resumes: a run directory with a config was interrupted (a
+    finished one returns its summary at once)."""
+    resume = (dest / "config.json").exists()
+    argv = head + ["--out", str(dest)] + _flags(options) + ["--threads", str(threads)]
+    return argv + ["--no-progress"] + (["--resume"] if resume else []), resume
 
 
 def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
@@ -142,14 +148,8 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
         from rmi_learn.world_models import training
 
         dest = out / "wm" / name
-        resume = _resume(dest)
-        argv = (
-            ["train-wm", *run.flags(), "--data", str(data), "--out", str(dest)]
-            + _flags(wm_opts)
-            + t
-            + ["--no-progress"]
-            + (["--resume"] if resume else [])
-        )
+        head = ["train-wm", *run.flags(), "--data", str(data)]
+        argv, resume = _training_argv(head, dest, wm_opts, threads)
 
         def call() -> object:
             return training.train(
@@ -191,14 +191,8 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
         from rmi_learn.policies import training
 
         dest = out / "policy" / obj
-        resume = _resume(dest)
-        argv = (
-            ["train-policy", "--objective", obj, "--data", str(data), "--out", str(dest)]
-            + _flags(pol_opts)
-            + t
-            + ["--no-progress"]
-            + (["--resume"] if resume else [])
-        )
+        head = ["train-policy", "--objective", obj, "--data", str(data)]
+        argv, resume = _training_argv(head, dest, pol_opts, threads)
 
         def call() -> object:
             return training.train_policy(
