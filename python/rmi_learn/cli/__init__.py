@@ -44,7 +44,8 @@ COMMANDS: dict[str, tuple[ModuleType, str]] = {
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rmi", description="Robotic Multiphase Interaction")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    # Not dest="command": `rmi closed-loop --command` would overwrite the command's name.
+    sub = parser.add_subparsers(dest="rmi_command", required=True, metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
         module.add_arguments(p)
@@ -59,11 +60,11 @@ def main(argv: list[str] | None = None) -> int:
     from rmi_learn.errors import report
 
     args = build_parser().parse_args(argv)
-    module = COMMANDS[args.command][0]
+    module = COMMANDS[args.rmi_command][0]
     try:
         return int(module.run(args) or 0)
     except (Exception, KeyboardInterrupt) as exc:
-        status = report(args.command, exc)
+        status = report(args.rmi_command, exc)
         if status is None:
             raise
         return status
