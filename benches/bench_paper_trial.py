@@ -18,7 +18,7 @@ import json
 import time
 
 import rmi_sph
-from rmi_learn.sweep import load_grid
+from rmi_learn.data.sweep import load_grid
 
 # Simulated time the controller spends closing and lifting (s); the other phases have fixed
 # durations in the config.
@@ -33,7 +33,7 @@ def main() -> None:
     grid = load_grid("paper")
     for size in grid["sizes_cm"]:
         cfg = rmi_sph.trial_config(size, 0.6, 110.0, 200.0, grid["radius_m"], **grid["overrides"])
-        sim = rmi_sph.Simulation(cfg, num_threads=args.threads)
+        sim = rmi_sph.Trial(cfg, num_threads=args.threads)
         sim.step(5)  # first steps build caches and warm starts
         t0 = time.perf_counter()
         sim.step(args.steps)

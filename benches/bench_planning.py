@@ -32,11 +32,11 @@ def main() -> None:
 
     import torch
 
-    from rmi_learn.models import build
-    from rmi_learn.policy.diffusion import DiffusionObjective
-    from rmi_learn.policy.flow import FlowObjective
-    from rmi_learn.policy.ranking import Planner, Standardiser, world_model_scorer
-    from rmi_learn.policy.unet import PolicyUNet, UNetConfig
+    from rmi_learn.policies.diffusion import DiffusionObjective
+    from rmi_learn.policies.flow import FlowObjective
+    from rmi_learn.policies.ranking import Planner, Standardiser, world_model_scorer
+    from rmi_learn.policies.unet import PolicyUNet, UNetConfig
+    from rmi_learn.world_models import build
 
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)

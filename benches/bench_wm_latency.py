@@ -50,8 +50,8 @@ def main() -> None:
 
     import torch
 
-    from rmi_learn.models import build, load
-    from rmi_learn.wm_eval import latency_inputs
+    from rmi_learn.world_models import build, load
+    from rmi_learn.world_models.evaluation import latency_inputs
 
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)

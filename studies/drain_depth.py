@@ -1,6 +1,6 @@
 """Where in the sponge does the released water start?
 
-Runs one scripted grasp-lift-squeeze trial through ``rmi_sph.Simulation`` and sorts the pore
+Runs one scripted grasp-lift-squeeze trial through ``rmi_sph.Trial`` and sorts the pore
 water by its initial depth below the sponge's surface (the skeleton's rest box, grown by one
 particle radius to the block's faces). For each depth band it prints the water that started
 there and the part of it that is no longer retained when the trial ends. At a converged
@@ -71,7 +71,7 @@ def run(a: argparse.Namespace) -> dict[str, Any]:
     import rmi_sph
 
     cfg = trial_config(a)
-    sim = rmi_sph.Simulation(cfg, num_threads=a.threads)
+    sim = rmi_sph.Trial(cfg, num_threads=a.threads)
     rest = np.asarray(sim.particles("solid")["rest_positions"])
     f0 = sim.particles("fluid")
     order0 = np.argsort(np.asarray(f0["id"]))

@@ -17,7 +17,7 @@ import time
 from typing import Any
 
 import rmi_sph
-from rmi_learn.sweep import load_grid
+from rmi_learn.data.sweep import load_grid
 
 #: The study grid's dt and phase timings, read from its preset.
 STUDY_TIMING: dict[str, Any] = load_grid("study")["overrides"]

@@ -5,7 +5,7 @@ pore volume the skeleton closes (plus what free drainage lets through, nothing a
 sponges' permeability; see the "hung sponge drainage" validation case). Released water above
 rho_f times the closed pore volume means the pores empty while gripped, which a sponge under
 positive pore pressure cannot do. This runs one scripted grasp-lift-squeeze trial through
-``rmi_sph.Simulation`` and prints, per controller phase, the retained water M_L and the pore
+``rmi_sph.Trial`` and prints, per controller phase, the retained water M_L and the pore
 volume V_pore at the phase's first and last sample, and the ratio of the water released to
 the pore volume closed since the plates closed.
 
@@ -94,7 +94,7 @@ def run(a: argparse.Namespace) -> dict[str, Any]:
     import rmi_sph
 
     cfg = trial_config(a, **({"gripper": {"gap": a.gap}} if a.gap is not None else {}))
-    sim = rmi_sph.Simulation(cfg, num_threads=a.threads)
+    sim = rmi_sph.Trial(cfg, num_threads=a.threads)
     t0 = time.perf_counter()
     samples: list[tuple[str, float, float]] = []
     layers: list[dict[str, Any]] = []

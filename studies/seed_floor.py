@@ -58,8 +58,8 @@ def condition(row: dict[str, Any]) -> Condition:
 def _load(sweeps: list[Path]) -> dict[Condition, dict[int, dict[str, np.ndarray]]]:
     import polars as pl
 
-    from rmi_learn.dataset import resample_run, select_learning_rows
-    from rmi_learn.runs import read_run
+    from rmi_learn.data.dataset import resample_run, select_learning_rows
+    from rmi_learn.data.runs import read_run
 
     groups: dict[Condition, dict[int, dict[str, np.ndarray]]] = defaultdict(dict)
     for sweep in sweeps:

@@ -37,7 +37,7 @@ def trial_config(a: argparse.Namespace, **tables: dict[str, Any]) -> dict[str, A
     """The config of ``a``'s condition with the series' overrides; ``tables`` (e.g.
     ``gripper={"gap": 0.015}``) are merged into the series' own tables of the same name."""
     import rmi_sph
-    from rmi_learn.sweep import load_grid
+    from rmi_learn.data.sweep import load_grid
 
     overrides = dict(load_grid(path=SERIES_GRID)["overrides"])
     for name, table in tables.items():

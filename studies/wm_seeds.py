@@ -24,8 +24,8 @@ from typing import Any
 
 import torch
 
-from rmi_learn.wm_eval import HORIZON_STEPS as STEPS
-from rmi_learn.wm_eval import horizon_label
+from rmi_learn.world_models.evaluation import HORIZON_STEPS as STEPS
+from rmi_learn.world_models.evaluation import horizon_label
 
 SIZES = (8, 10, 12)
 
@@ -54,10 +54,10 @@ class Average(torch.nn.Module):
 
 def evaluate(runs: list[str], data: str, split: str) -> dict[str, Any]:
     """``{size: {name: metrics}}`` for the Baseline, each run and their average."""
-    from rmi_learn import models
-    from rmi_learn.dataset import load_dataset
-    from rmi_learn.models.baseline import BaselineWM
-    from rmi_learn.wm_eval import evaluate_rollouts
+    from rmi_learn import world_models as models
+    from rmi_learn.data.dataset import load_dataset
+    from rmi_learn.world_models.baseline import BaselineWM
+    from rmi_learn.world_models.evaluation import evaluate_rollouts
 
     ds = load_dataset(data)
     members = [models.load(r)[0].eval() for r in runs]

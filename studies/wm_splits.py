@@ -23,7 +23,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from rmi_learn.wm_eval import MAIN_STEP, SIZES, horizon_label, lookup
+from rmi_learn.world_models.evaluation import MAIN_STEP, SIZES, horizon_label, lookup
 
 #: The rows compared, keyed as in ``rmi eval-wm``'s results.json.
 ROWS: dict[str, dict[str, Any]] = {

@@ -1,7 +1,7 @@
 """Shared pytest fixtures.
 
 ``synthetic_runs_dir`` and ``synthetic_dataset_dir`` (session-scoped) give run files from the
-toy ODE of ``rmi_learn.synthetic`` and a dataset built from them, for fast tests of the data
+toy ODE of ``rmi_learn.data.synthetic`` and a dataset built from them, for fast tests of the data
 and learning code. Their numbers mean nothing physically. ``bench_script`` loads a script of
 ``benches/`` as a module, to test its pure functions.
 """
@@ -40,8 +40,8 @@ SYNTHETIC_RUNS_PER_SIZE = 12
 
 @pytest.fixture(scope="session")
 def synthetic_runs_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Directory of synthetic run files (grid layout of ``rmi_learn.runs.run_path``)."""
-    from rmi_learn.synthetic import write_synthetic_runs
+    """Directory of synthetic run files (grid layout of ``rmi_learn.data.runs.run_path``)."""
+    from rmi_learn.data.synthetic import write_synthetic_runs
 
     root = tmp_path_factory.mktemp("synthetic") / "runs"
     write_synthetic_runs(root, n_per_size=SYNTHETIC_RUNS_PER_SIZE, seed=0)
@@ -51,7 +51,7 @@ def synthetic_runs_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="session")
 def synthetic_dataset_dir(synthetic_runs_dir: Path) -> Path:
     """A dataset built with ``build_dataset(synthetic_runs_dir, ..., seed=0)``: open it with
-    ``rmi_learn.dataset.load_dataset(synthetic_dataset_dir)``. Treat it as read-only."""
-    from rmi_learn.dataset import build_dataset
+    ``rmi_learn.data.dataset.load_dataset(synthetic_dataset_dir)``. Treat it as read-only."""
+    from rmi_learn.data.dataset import build_dataset
 
     return build_dataset(synthetic_runs_dir, synthetic_runs_dir.parent / "dataset", seed=0)

@@ -65,7 +65,7 @@ def test_rows_per_condition_coarse_to_fine(
 
 
 def test_committed_grids_load_and_the_series_varies_only_the_radius() -> None:
-    from rmi_learn.sweep import load_grid
+    from rmi_learn.data.sweep import load_grid
 
     grids = Path(__file__).resolve().parents[2] / "studies" / "grids"
     for f in sorted(grids.rglob("*.json")):

@@ -1,0 +1,74 @@
+"""The ``rmi`` command line: one entry point, one module per subcommand.
+
+Each subcommand module (``rmi_learn.cli.<name>``) holds its options (``add_arguments``) and a
+``run(args) -> int`` that calls the library function of its stage with typed arguments. The
+modules import nothing heavy at the top, so ``rmi --help`` stays fast and a missing optional
+dependency only affects the command that needs it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from types import ModuleType
+
+from rmi_learn.cli import (
+    analyze,
+    closed_loop,
+    dataset,
+    eval_wm,
+    pipeline,
+    rank,
+    report,
+    simulate,
+    sweep,
+    train_policy,
+    train_wm,
+)
+
+#: command name -> (module, one-line help)
+COMMANDS: dict[str, tuple[ModuleType, str]] = {
+    "simulate": (simulate, "run one grasp-lift-squeeze trial, write Parquet and VTK"),
+    "sweep": (sweep, "run a grid of trials (resumable, local or Ray)"),
+    "dataset": (dataset, "resample runs to 20 ms and build learning windows"),
+    "analyze": (analyze, "physical analysis of a run grid: figures and numbers"),
+    "train-wm": (train_wm, "train a world model"),
+    "eval-wm": (eval_wm, "evaluate world models, write Tables II-IV"),
+    "train-policy": (train_policy, "train a goal-conditioned UNet policy"),
+    "rank": (rank, "rank policy samples with the world model, write Tables III, V, S1"),
+    "closed-loop": (closed_loop, "execute ranked actions in the simulator"),
+    "pipeline": (pipeline, "run every stage from sweep to report"),
+    "report": (report, "write report.md and report.html"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="rmi", description="Robotic Multiphase Interaction")
+    # Not dest="command": `rmi closed-loop --command` would overwrite the command's name.
+    sub = parser.add_subparsers(dest="rmi_command", required=True, metavar="COMMAND")
+    for name, (module, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        module.add_arguments(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one ``rmi`` command. Outputs are written atomically, so what finished is kept
+    after Ctrl-C (status 130), and the resumable commands (sweep, train-*, closed-loop,
+    pipeline) pick up from there when rerun. Input errors end with one line and status 2
+    (see :mod:`rmi_learn.errors`)."""
+    from rmi_learn.errors import report
+
+    args = build_parser().parse_args(argv)
+    module = COMMANDS[args.rmi_command][0]
+    try:
+        return int(module.run(args) or 0)
+    except (Exception, KeyboardInterrupt) as exc:
+        status = report(args.rmi_command, exc)
+        if status is None:
+            raise
+        return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())

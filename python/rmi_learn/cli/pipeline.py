@@ -1,0 +1,59 @@
+"""``rmi pipeline``: every stage from the run grid to the report, resumable.
+
+    rmi pipeline --preset quick --out results/quick
+    rmi pipeline --preset paper --out results/paper          # days here; see the README
+    rmi pipeline --config my_pipeline.json --out DIR [--only rank closed-loop report]
+
+A finished stage is skipped on the next call; an interrupted one continues (see
+:mod:`rmi_learn.pipeline`). ``OUT/stages/<stage>.json`` records each stage's wall time and
+the ``rmi`` command lines that reproduce it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from rmi_learn.cli.argtypes import count
+from rmi_learn.errors import InputError
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``rmi pipeline``."""
+    src = parser.add_mutually_exclusive_group(required=True)
+    src.add_argument(
+        "--preset", choices=("tiny", "quick", "study", "paper"), help="a built-in pipeline"
+    )
+    src.add_argument("--config", type=Path, metavar="FILE", help="a pipeline JSON file")
+    parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory")
+    parser.add_argument(
+        "--threads",
+        type=count(1),
+        default=None,
+        help="torch threads per stage (default: all cores)",
+    )
+    parser.add_argument("--only", nargs="+", metavar="STAGE", help="run just these stages")
+    parser.add_argument("--redo", nargs="+", metavar="STAGE", help="forget these stages' markers")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the pipeline; 0 when every stage finished, 1 when one failed, 2 on bad input."""
+    import os
+
+    from rmi_learn.pipeline import PipelineError, load_preset, run_pipeline
+
+    try:
+        cfg = load_preset(preset=args.preset) if args.preset else load_preset(path=args.config)
+    except (OSError, ValueError) as exc:
+        raise InputError(exc) from exc
+    threads = args.threads or os.cpu_count() or 1
+    try:
+        run_pipeline(cfg, args.out, threads=threads, only=args.only, redo=args.redo)
+    except ValueError as exc:
+        raise InputError(exc) from exc
+    except PipelineError as exc:
+        print(f"rmi pipeline: {exc}", file=sys.stderr)
+        print("run the same command again to continue from this stage", file=sys.stderr)
+        return 1
+    return 0

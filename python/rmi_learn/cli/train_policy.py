@@ -1,0 +1,91 @@
+"""``rmi train-policy``: train the goal-conditioned UNet policy (diffusion or flow matching)
+on a built dataset (see :mod:`rmi_learn.policies.training`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from rmi_learn.cli.argtypes import count, counts, non_negative, positive, real
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """CLI options of ``rmi train-policy``."""
+    parser.add_argument("--objective", choices=("diffusion", "flow"), required=True)
+    parser.add_argument("--data", required=True, type=Path, help="built dataset directory")
+    parser.add_argument("--out", required=True, type=Path, help="run directory (new or --resume)")
+    parser.add_argument("--size-cm", type=int, default=None, help="train on one sponge size")
+    parser.add_argument("--epochs", type=count(1), default=80)
+    parser.add_argument("--batch-size", type=count(1), default=64)
+    parser.add_argument("--lr", type=positive, default=1e-4)
+    parser.add_argument("--weight-decay", type=non_negative, default=1e-6)
+    parser.add_argument("--patience", type=count(1), default=12)
+    parser.add_argument("--seed", type=count(0), default=0)
+    parser.add_argument("--history", type=count(1), default=16)
+    parser.add_argument("--horizon", type=count(4), default=32, help="H_pi, divisible by 4")
+    parser.add_argument(
+        "--ema-decay", type=real(0.0, 1.0, high_open=True), default=0.999, help="EMA decay cap"
+    )
+    parser.add_argument(
+        "--snr-floor",
+        type=non_negative,
+        default=0.0,
+        help="floor of the min-SNR weight (diffusion)",
+    )
+    parser.add_argument(
+        "--val-windows",
+        type=count(1),
+        default=1024,
+        help="validation windows (evenly spaced subset) for the selection metric",
+    )
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--threads", type=count(1), default=None, help="torch CPU threads")
+    parser.add_argument("--max-steps-per-epoch", type=count(1), default=None)
+    parser.add_argument("--resume", action="store_true", help="continue the run in --out")
+    parser.add_argument("--debug", action="store_true", help="shrink the run to seconds")
+    parser.add_argument("--deterministic", action="store_true")
+    parser.add_argument("--no-progress", action="store_true", help="no tqdm bars")
+    parser.add_argument(
+        "--channels",
+        type=counts,
+        default=(64, 128, 256),
+        help="UNet channel widths, comma separated, multiples of 8 (default 64,128,256)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Train one policy; prints the run summary as JSON. 0 on success, 2 on a user error
+    (output directory holds a run without --resume, or resume settings differ)."""
+    import torch
+
+    from rmi_learn.policies.training import train_policy
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    summary = train_policy(
+        args.objective,
+        args.data,
+        args.out,
+        size_cm=args.size_cm,
+        epochs=args.epochs,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        weight_decay=args.weight_decay,
+        patience=args.patience,
+        seed=args.seed,
+        history=args.history,
+        horizon=args.horizon,
+        ema_decay=args.ema_decay,
+        snr_floor=args.snr_floor,
+        val_windows=args.val_windows,
+        device=args.device,
+        max_steps_per_epoch=args.max_steps_per_epoch,
+        resume=args.resume,
+        debug=args.debug,
+        deterministic=args.deterministic,
+        progress=not args.no_progress,
+        channels=args.channels,
+    )
+    print(json.dumps(summary, indent=2))
+    return 0

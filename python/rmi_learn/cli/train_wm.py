@@ -1,0 +1,168 @@
+"""``rmi train-wm``: train one world model on a built dataset (see
+:mod:`rmi_learn.world_models.training`).
+
+    rmi train-wm --model ac-gru --data DATASET --out RUN [--size 8|10|12]
+                 [--state-groups LS|LS+G|LS+G+C|ALL] [--shuffle-actions] [--epochs N]
+                 [--water-weight W] [--huber-delta D] [--loss-scale state|change]
+                 [--seed S] [--resume] [--debug]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from typing import Any
+
+from rmi_learn.cli.argtypes import count, positive
+from rmi_learn.data.schema import SPONGE_SIZES_CM
+from rmi_learn.errors import InputError
+from rmi_learn.world_models.training import (
+    GROUP_CHOICES,
+    HUBER_DELTA,
+    LOSS_SCALES,
+    MODEL_CHOICES,
+)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``rmi train-wm``."""
+    parser.add_argument("--model", required=True, choices=MODEL_CHOICES)
+    parser.add_argument("--data", required=True, metavar="DIR", help="built dataset directory")
+    parser.add_argument("--out", required=True, metavar="DIR", help="run output directory")
+    parser.add_argument(
+        "--size",
+        type=int,
+        choices=SPONGE_SIZES_CM,
+        default=None,
+        help="train on one sponge size (cm); default: all sizes",
+    )
+    parser.add_argument(
+        "--state-groups",
+        default="ALL",
+        choices=GROUP_CHOICES,
+        help="input state groups (paper Eq. 7); default ALL",
+    )
+    parser.add_argument(
+        "--shuffle-actions",
+        action="store_true",
+        help="pair each history with an action chunk from another run",
+    )
+    parser.add_argument(
+        "--model-arg",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="architecture override passed to the model constructor, e.g. d_model=128 "
+        "(JSON value; repeatable); defaults follow the paper",
+    )
+    parser.add_argument("--epochs", type=count(1), default=40, help="maximum epochs (default 40)")
+    parser.add_argument("--patience", type=count(1), default=8, help="early-stopping patience")
+    parser.add_argument(
+        "--tf-epochs",
+        type=count(0),
+        default=20,
+        help="teacher forcing decays 1 -> 0 over this many epochs",
+    )
+    parser.add_argument(
+        "--water-weight",
+        type=positive,
+        default=None,
+        help="loss weight of the retained-water channel (default: 8 for the Transformer, "
+        "1 otherwise, as in the paper)",
+    )
+    parser.add_argument(
+        "--huber-delta",
+        type=positive,
+        default=HUBER_DELTA,
+        help="Huber loss threshold in standardised units (default 1, torch's): errors "
+        "above it are weighed linearly, below it quadratically",
+    )
+    parser.add_argument(
+        "--loss-scale",
+        choices=LOSS_SCALES,
+        default=None,
+        help="state (the paper's loss; the Transformer's default): errors in units of each "
+        "channel's standardised level; change (the GRU and MLP models' default): in units "
+        "of each channel's RMS change over the horizon in the training windows, so that "
+        "slowly moving channels such as retained water count",
+    )
+    parser.add_argument("--batch-size", type=count(1), default=128)
+    parser.add_argument(
+        "--steps-per-epoch",
+        type=count(1),
+        default=None,
+        help="cap the optimiser steps per epoch (each epoch then sees a fresh random subset "
+        "of the windows); default: every window once",
+    )
+    parser.add_argument("--lr", type=positive, default=None, help="learning rate (model default)")
+    parser.add_argument(
+        "--val-windows",
+        type=count(1),
+        default=4096,
+        help="validate on at most this many evenly spaced windows",
+    )
+    parser.add_argument("--seed", type=count(0), default=0)
+    parser.add_argument("--deterministic", action="store_true")
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument(
+        "--threads",
+        type=count(1),
+        default=1,
+        help="torch CPU threads (default 1: the cores are shared)",
+    )
+    parser.add_argument("--resume", action="store_true", help="continue the run in --out")
+    parser.add_argument("--debug", action="store_true", help="tiny run that takes seconds")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Train as configured by ``args``; 0 on success, 2 on a user error."""
+    import torch
+
+    from rmi_learn.world_models.training import train
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    summary = train(
+        model=args.model,
+        model_args=_parse_model_args(args.model_arg),
+        data=args.data,
+        out=args.out,
+        size_cm=args.size,
+        state_groups=args.state_groups,
+        shuffle_actions=args.shuffle_actions,
+        epochs=args.epochs,
+        patience=args.patience,
+        tf_epochs=args.tf_epochs,
+        batch_size=args.batch_size,
+        steps_per_epoch=args.steps_per_epoch,
+        water_weight=args.water_weight,
+        huber_delta=args.huber_delta,
+        loss_scale=args.loss_scale,
+        lr=args.lr,
+        val_windows=args.val_windows,
+        seed=args.seed,
+        deterministic=args.deterministic,
+        device=args.device,
+        resume=args.resume,
+        debug=args.debug,
+        progress=not args.no_progress,
+    )
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
+def _parse_model_args(items: list[str]) -> dict[str, Any]:
+    """``["d_model=128", "dropout=0.2"]`` -> ``{"d_model": 128, "dropout": 0.2}``."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise InputError(f"--model-arg expects KEY=VALUE, got {item!r}")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+

@@ -1,0 +1,420 @@
+"""Run files: one Parquet file per simulated trial, written atomically with polars.
+
+A run file has one row per record (every 5 ms by default) and the columns of
+:data:`RUN_COLUMNS`: every name in ``schema.EXTRAS`` (``time`` f64 in s, ``phase`` str,
+``gate_open`` bool, the others f64), every name in ``schema.OBS`` (f64, SI units; ``c`` and
+``r_*`` are 0/1; ``v_res`` is NaN without contact, every other channel has physical zeros)
+and ``schema.ACTIONS`` (f64). Parquet file-level key-value metadata holds
+``rmi.config`` (trial config JSON), ``rmi.params`` (JSON: ``size_cm``, ``porosity``,
+``F_hold`` N, ``F_squeeze`` N, ``seed``), ``rmi.outcome`` (JSON: ``lift_success``,
+``stable_squeeze``, ``failure``, ``water_removed`` {phase: kg}, ``initial_water`` kg,
+``final_water`` kg, ``wall_s`` s, plus any extra scalars the engine reports), ``rmi.version``
+and ``rmi.git``. polars (>= 1.x) writes this metadata itself (``write_parquet(metadata=)``)
+and reads it back without the data (``read_parquet_metadata``), so no pyarrow and no sidecar
+file is needed.
+
+Layout of a grid (:func:`run_path`): hive-style directories, one per parameter,
+``size_cm=10/porosity=0.6/F_hold=110/F_squeeze=200/seed=0/run.parquet``, so that
+``pl.scan_parquet(root / "**/*.parquet", hive_partitioning=True)`` (or :func:`scan_runs`,
+which pins the partition types) yields the parameters as columns. A run that raised is
+recorded as ``error.json`` in the same directory (:func:`write_error`).
+
+Writes are atomic: data go to a hidden temporary name in the destination directory
+(``.run.parquet.<random>.tmp``, never matched by ``*.parquet``), are flushed and fsynced,
+then renamed over the destination with :func:`os.replace`; the directory is fsynced too. A
+reader therefore sees either no file or a complete one, even after ``kill -9``.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import os
+import subprocess
+import tempfile
+from collections.abc import Iterator, Mapping
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+
+from rmi_learn import __version__
+from rmi_learn.data.schema import ACTIONS, EXTRAS, OBS
+
+#: Every column of a run file, in file order.
+RUN_COLUMNS: tuple[str, ...] = EXTRAS + OBS + ACTIONS
+#: The only channel allowed to hold NaN (undefined without contact).
+NAN_ALLOWED: frozenset[str] = frozenset({"v_res"})
+#: Columns that are not f64.
+_STRING_COLUMNS = frozenset({"phase"})
+_BOOL_COLUMNS = frozenset({"gate_open"})
+
+#: Parameters that name a run, in partition order, with their polars types.
+PARAM_KEYS: tuple[str, ...] = ("size_cm", "porosity", "F_hold", "F_squeeze", "seed")
+PARAM_SCHEMA: dict[str, pl.DataType] = {
+    "size_cm": pl.Int64(),
+    "porosity": pl.Float64(),
+    "F_hold": pl.Float64(),
+    "F_squeeze": pl.Float64(),
+    "seed": pl.Int64(),
+}
+RUN_FILE = "run.parquet"
+ERROR_FILE = "error.json"
+TMP_SUFFIX = ".tmp"
+
+META_KEYS = {
+    "config": "rmi.config",
+    "params": "rmi.params",
+    "outcome": "rmi.outcome",
+    "version": "rmi.version",
+    "git": "rmi.git",
+}
+
+
+class RunFileError(ValueError):
+    """A run file's columns, values or metadata break the run-file contract."""
+
+
+# --------------------------------------------------------------------------------------
+# Atomic writes
+
+
+def _fsync_dir(directory: Path) -> None:
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:  # platforms without directory handles
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _current_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+# Read once at import: os.umask can only be read by setting it, which is not thread-safe.
+_UMASK = _current_umask()
+
+
+def atomic_write_bytes(path: str | os.PathLike[str], writer: Any) -> Path:
+    """Write ``path`` atomically: ``writer(fileobj)`` fills a temporary file in the same
+    directory, which is fsynced and renamed over ``path``. Returns ``path``.
+
+    The temporary file is ``.<name>.<random>.tmp`` and is removed if ``writer`` raises.
+    """
+    dest = Path(path)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=TMP_SUFFIX, dir=dest.parent)
+    tmp = Path(tmp_name)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            writer(f)
+            f.flush()
+            # mkstemp creates 0600; give the file the permissions a plain open() would.
+            if hasattr(os, "fchmod"):
+                os.fchmod(f.fileno(), 0o666 & ~_UMASK)
+            os.fsync(f.fileno())
+        os.replace(tmp, dest)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    _fsync_dir(dest.parent)
+    return dest
+
+
+def json_safe(obj: Any) -> Any:
+    """A JSON-ready copy of ``obj``: NaN and inf become ``None`` (tables and summaries never
+    hold NaN), numpy scalars and arrays become Python numbers and lists, tuples lists."""
+    if isinstance(obj, Mapping):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return [json_safe(v) for v in obj.tolist()]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def read_json_source(
+    package: str, presets: tuple[str, ...], preset: str | None, path: Any, kind: str
+) -> tuple[Any, str]:
+    """Parse a built-in preset (``<package>/<preset>.json``) or a JSON file: exactly one of
+    ``preset`` and ``path``. Returns the parsed value and a label naming its source for error
+    messages; ``kind`` names what is read (e.g. "grid") in those messages."""
+    if (preset is None) == (path is None):
+        raise ValueError("give exactly one of preset or path")
+    if preset is not None:
+        if preset not in presets:
+            raise ValueError(f"unknown {kind} preset {preset!r}; choose one of {presets}")
+        text = resources.files(package).joinpath(f"{preset}.json").read_text()
+        source = f"{kind} preset {preset}"
+    else:
+        text = Path(path).read_text()
+        source = str(path)
+    try:
+        return json.loads(text), source
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{source}: not valid JSON: {exc}") from exc
+
+
+def atomic_write_json(path: str | os.PathLike[str], obj: Any) -> Path:
+    """Write ``obj`` as indented JSON to ``path`` atomically (see :func:`atomic_write_bytes`)."""
+    data = (json.dumps(obj, indent=2, sort_keys=True, default=_json_default) + "\n").encode()
+    return atomic_write_bytes(path, lambda f: f.write(data))
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+
+
+def _dumps(obj: Any) -> str:
+    return json.dumps(obj, sort_keys=True, default=_json_default, allow_nan=True)
+
+
+# --------------------------------------------------------------------------------------
+# Provenance
+
+
+@functools.lru_cache(maxsize=1)
+def git_revision() -> str:
+    """The git revision of the source tree this package runs from (``<sha>`` or
+    ``<sha>-dirty``), ``$RMI_GIT_REV`` if set, or ``"unknown"`` outside a checkout."""
+    env = os.environ.get("RMI_GIT_REV")
+    if env:
+        return env
+    here = Path(__file__).resolve().parent
+    try:
+        sha = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=10
+        )
+        if sha.returncode != 0:
+            return "unknown"
+        dirty = subprocess.run(
+            ["git", "diff-index", "--quiet", "HEAD", "--"], cwd=here, timeout=20
+        ).returncode
+        return sha.stdout.strip() + ("-dirty" if dirty == 1 else "")
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+# --------------------------------------------------------------------------------------
+# Paths
+
+
+def format_value(x: float | int) -> str:
+    """Shortest text of a parameter value for a path: ``110.0 -> "110"``, ``0.6 -> "0.6"``."""
+    if isinstance(x, (bool, np.bool_)):
+        raise TypeError("parameters are numbers, not booleans")
+    xf = float(x)
+    if xf.is_integer():
+        return str(int(xf))
+    return repr(xf)
+
+
+def run_relpath(params: Mapping[str, Any]) -> Path:
+    """Hive-style relative directory of a run, e.g.
+    ``size_cm=10/porosity=0.6/F_hold=110/F_squeeze=200/seed=0``."""
+    missing = [k for k in PARAM_KEYS if k not in params]
+    if missing:
+        raise RunFileError(f"params lack {missing} (need {list(PARAM_KEYS)})")
+    return Path(*(f"{k}={format_value(params[k])}" for k in PARAM_KEYS))
+
+
+def run_path(root: str | os.PathLike[str], params: Mapping[str, Any]) -> Path:
+    """Path of the run file of ``params`` under ``root`` (see :func:`run_relpath`)."""
+    return Path(root) / run_relpath(params) / RUN_FILE
+
+
+def run_id(params: Mapping[str, Any]) -> str:
+    """Stable text name of a run: its relative directory with ``/`` separators."""
+    return run_relpath(params).as_posix()
+
+
+def iter_run_files(root: str | os.PathLike[str]) -> Iterator[Path]:
+    """Every complete run file under ``root`` (recursively, sorted; temporaries ignored)."""
+    yield from sorted(Path(root).rglob(RUN_FILE))
+
+
+# --------------------------------------------------------------------------------------
+# Write and read
+
+
+def _validate_columns(columns: Mapping[str, Any]) -> dict[str, np.ndarray]:
+    missing = [c for c in RUN_COLUMNS if c not in columns]
+    extra = [c for c in columns if c not in RUN_COLUMNS]
+    if missing or extra:
+        raise RunFileError(
+            f"run columns differ from the contract: missing {missing}, unknown {extra}"
+        )
+    out: dict[str, np.ndarray] = {}
+    n: int | None = None
+    for name in RUN_COLUMNS:
+        raw = columns[name]
+        if name in _STRING_COLUMNS:
+            arr = np.asarray(raw, dtype=object).astype(str)
+        elif name in _BOOL_COLUMNS:
+            arr = np.asarray(raw)
+            if arr.dtype != np.bool_:
+                if not np.all(np.isin(arr, (0, 1))):
+                    raise RunFileError(f"channel {name!r} must be boolean (0/1)")
+                arr = arr.astype(bool)
+        else:
+            try:
+                arr = np.asarray(raw, dtype=np.float64)
+            except (TypeError, ValueError) as exc:
+                raise RunFileError(f"channel {name!r} is not numeric: {exc}") from exc
+            if name not in NAN_ALLOWED:
+                bad = ~np.isfinite(arr)
+                if bad.any():
+                    i = int(np.argmax(bad))
+                    raise RunFileError(
+                        f"channel {name!r} has {int(bad.sum())} non-finite value(s) "
+                        f"(first at row {i}: {arr[i]}); only {sorted(NAN_ALLOWED)} may be NaN"
+                    )
+            elif np.isinf(arr).any():
+                raise RunFileError(f"channel {name!r} has infinite values (NaN is allowed)")
+        if arr.ndim != 1:
+            raise RunFileError(f"channel {name!r} must be one-dimensional, got shape {arr.shape}")
+        if n is None:
+            n = arr.shape[0]
+        elif arr.shape[0] != n:
+            raise RunFileError(f"channel {name!r} has {arr.shape[0]} rows, expected {n}")
+        out[name] = arr
+    if n == 0:
+        raise RunFileError("a run file needs at least one row")
+    t = out["time"]
+    if np.any(np.diff(t) <= 0):
+        raise RunFileError("channel 'time' must be strictly increasing")
+    return out
+
+
+def _validate_params(params: Mapping[str, Any]) -> dict[str, Any]:
+    run_relpath(params)  # checks presence
+    out = dict(params)
+    for k in PARAM_KEYS:
+        v = params[k]
+        if k in ("size_cm", "seed"):
+            if float(v) != int(v):
+                raise RunFileError(f"param {k!r} must be an integer, got {v!r}")
+            out[k] = int(v)
+        else:
+            if not math.isfinite(float(v)):
+                raise RunFileError(f"param {k!r} must be finite, got {v!r}")
+            out[k] = float(v)
+    return out
+
+
+def write_run(
+    path: str | os.PathLike[str],
+    columns: Mapping[str, Any],
+    config: Mapping[str, Any],
+    params: Mapping[str, Any],
+    outcome: Mapping[str, Any],
+) -> Path:
+    """Write one run file atomically and return its path.
+
+    ``columns`` maps every name of :data:`RUN_COLUMNS` to a 1-D array of equal length (SI
+    units; ``time`` in s, strictly increasing). Raises :class:`RunFileError` naming the
+    channel if a column is missing or unknown, or if any channel other than ``v_res`` holds
+    NaN or inf. ``config``, ``params`` and ``outcome`` are stored as JSON in the file
+    metadata together with the package version and git revision.
+    """
+    cols = _validate_columns(columns)
+    p = _validate_params(params)
+    df = pl.DataFrame(
+        {
+            name: pl.Series(
+                name,
+                arr,
+                dtype=pl.String
+                if name in _STRING_COLUMNS
+                else pl.Boolean
+                if name in _BOOL_COLUMNS
+                else pl.Float64,
+            )
+            for name, arr in cols.items()
+        }
+    )
+    meta = {
+        META_KEYS["config"]: _dumps(dict(config)),
+        META_KEYS["params"]: _dumps(p),
+        META_KEYS["outcome"]: _dumps(dict(outcome)),
+        META_KEYS["version"]: __version__,
+        META_KEYS["git"]: git_revision(),
+    }
+    return atomic_write_bytes(path, lambda f: df.write_parquet(f, metadata=meta))
+
+
+def read_run_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The metadata of a run file without its data: ``{"config", "params", "outcome"}``
+    as dicts and ``"version"``, ``"git"`` as strings."""
+    try:
+        raw = pl.read_parquet_metadata(Path(path))
+    except pl.exceptions.PolarsError as exc:
+        raise _unreadable(path, exc) from exc
+    if META_KEYS["params"] not in raw:
+        raise RunFileError(f"{path}: not an rmi run file (no {META_KEYS['params']} metadata)")
+    meta: dict[str, Any] = {}
+    for key, mkey in META_KEYS.items():
+        value = raw.get(mkey)
+        if key in ("config", "params", "outcome"):
+            meta[key] = json.loads(value) if value is not None else {}
+        else:
+            meta[key] = value
+    return meta
+
+
+def read_run(path: str | os.PathLike[str]) -> tuple[pl.DataFrame, dict[str, Any]]:
+    """Read a run file: its rows as a polars DataFrame and its metadata
+    (see :func:`read_run_meta`)."""
+    meta = read_run_meta(path)
+    try:
+        df = pl.read_parquet(Path(path))
+    except pl.exceptions.PolarsError as exc:
+        raise _unreadable(path, exc) from exc
+    return df, meta
+
+
+def _unreadable(path: str | os.PathLike[str], exc: Exception) -> RunFileError:
+    # Run files are written atomically, so a damaged one came from outside (a full disk, a
+    # copy cut short): say which, and how to get the run back.
+    return RunFileError(f"{path}: unreadable run file ({exc}); delete it and sweep again to rerun")
+
+
+def scan_runs(root: str | os.PathLike[str]) -> pl.LazyFrame:
+    """Lazily scan every run file under a grid root, with the hive partition columns
+    ``size_cm, porosity, F_hold, F_squeeze, seed`` typed as in :data:`PARAM_SCHEMA`."""
+    return pl.scan_parquet(
+        Path(root) / "**" / RUN_FILE,
+        hive_partitioning=True,
+        hive_schema=PARAM_SCHEMA,
+    )
+
+
+def write_error(
+    directory: str | os.PathLike[str], params: Mapping[str, Any], record: Mapping[str, Any]
+) -> Path:
+    """Record a run that produced no run file (``status`` failed or unstable, ``error``
+    text, ``wall_s``) as ``error.json`` in its run directory, atomically."""
+    body = {"params": _validate_params(params), **dict(record)}
+    body.setdefault("version", __version__)
+    body.setdefault("git", git_revision())
+    return atomic_write_json(Path(directory) / ERROR_FILE, body)

@@ -1,0 +1,790 @@
+"""Resumable parameter sweeps: a grid of trials, one run file each, local or Ray workers.
+
+A grid (a JSON preset in ``rmi_learn/data/grids/`` or a user file, see :func:`load_grid`) is the
+product sizes x porosities x holding forces x squeeze forces x seeds. Each grid point is one
+run. Its output lives in a hive-style directory under ``OUT/runs`` (see
+:func:`rmi_learn.data.runs.run_path`)::
+
+    OUT/grid.json                      the grid of the first sweep into OUT
+    OUT/index.parquet                  one row per run, rebuilt from the run directories
+    OUT/runs/size_cm=10/porosity=0.6/F_hold=110/F_squeeze=200/seed=0/run.parquet
+    OUT/runs/.../error.json            instead of run.parquet when the run raised
+
+Every run is idempotent: a run whose ``run.parquet`` exists is skipped; a run with an
+``error.json`` is skipped too unless ``retry_failed`` (deterministic failures are not
+recomputed on every resume). Files are written under a temporary name and renamed
+atomically, so a sweep killed at any moment (even ``kill -9``) resumes with every finished
+run kept and no partial file. A runner exception is recorded in ``error.json`` with status
+``unstable`` (the engine's ``SimulationUnstableError``) or ``failed`` (anything else) and the
+sweep goes on. ``index.parquet`` is derived from the run directories only
+(:func:`build_index`), so it can never disagree with them.
+
+The runner is injectable: ``runner(config: dict, *, num_threads: int) -> {"columns",
+"outcome"}`` and ``make_config(size_cm, porosity, hold_force, squeeze_force, radius, seed,
+**overrides) -> dict``; the defaults are ``rmi_sph.run_trial`` and ``rmi_sph.trial_config``.
+They must be picklable (module-level functions), or ``"module:function"`` strings, because
+local workers are spawned processes (fork and the engine's rayon pools do not mix).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import contextlib
+import importlib
+import json
+import math
+import multiprocessing
+import os
+import sys
+import time
+import traceback
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import polars as pl
+
+from rmi_learn.data.runs import (
+    ERROR_FILE,
+    PARAM_KEYS,
+    RUN_FILE,
+    TMP_SUFFIX,
+    RunFileError,
+    atomic_write_bytes,
+    atomic_write_json,
+    read_json_source,
+    read_run_meta,
+    run_id,
+    run_path,
+    write_error,
+    write_run,
+)
+from rmi_learn.data.schema import FORCE_LIMIT_N, PHASES, SPONGE_SIZES_CM
+from rmi_learn.errors import InputError, StageFailure
+
+PRESETS: tuple[str, ...] = ("tiny", "quick", "study", "paper")
+RUNS_SUBDIR = "runs"
+INDEX_FILE = "index.parquet"
+GRID_FILE = "grid.json"
+LOCK_FILE = ".sweep.lock"
+_GRID_KEYS = {
+    "name",
+    "description",
+    "sizes_cm",
+    "porosities",
+    "hold_forces_N",
+    "squeeze_forces_N",
+    "seeds",
+    "radius_m",
+    "overrides",
+}
+
+Runner = Callable[..., Mapping[str, Any]]
+ConfigMaker = Callable[..., dict[str, Any]]
+
+
+# --------------------------------------------------------------------------------------
+# Grids
+
+
+def load_grid(
+    preset: str | None = None, path: str | os.PathLike[str] | None = None
+) -> dict[str, Any]:
+    """Read and validate a grid: a preset name (``tiny``, ``quick``, ``paper``) or a JSON
+    file. Keys: ``sizes_cm`` (8, 10, 12), ``porosities`` (0..1), ``hold_forces_N`` and
+    ``squeeze_forces_N`` (0 < F <= 400 N), ``seeds`` (ints), ``radius_m`` (particle radius,
+    m), optional ``overrides`` (passed to ``make_config`` as keyword arguments, e.g. trial
+    timings), ``name`` and ``description``."""
+    grid, source = read_json_source("rmi_learn.data.grids", PRESETS, preset, path, "grid")
+    return validate_grid(grid, source)
+
+
+def validate_grid(grid: Mapping[str, Any], source: str = "grid") -> dict[str, Any]:
+    """Check a grid dict (see :func:`load_grid`) and return a normalised copy."""
+    unknown = set(grid) - _GRID_KEYS
+    if unknown:
+        raise ValueError(f"{source}: unknown keys {sorted(unknown)} (allowed {sorted(_GRID_KEYS)})")
+    need = ["sizes_cm", "porosities", "hold_forces_N", "squeeze_forces_N", "seeds", "radius_m"]
+    missing = [k for k in need if k not in grid]
+    if missing:
+        raise ValueError(f"{source}: missing keys {missing}")
+    g: dict[str, Any] = {
+        "name": str(grid.get("name", "custom")),
+        "description": str(grid.get("description", "")),
+        "overrides": dict(grid.get("overrides", {})),
+    }
+    for key in ("sizes_cm", "porosities", "hold_forces_N", "squeeze_forces_N", "seeds"):
+        vals = grid[key]
+        if not isinstance(vals, list) or not vals:
+            raise ValueError(f"{source}: {key} must be a non-empty list")
+        if len(set(vals)) != len(vals):
+            raise ValueError(f"{source}: {key} has duplicates")
+        g[key] = list(vals)
+    sizes = ", ".join(str(s) for s in SPONGE_SIZES_CM[:-1]) + f" or {SPONGE_SIZES_CM[-1]}"
+    for s in g["sizes_cm"]:
+        if s not in SPONGE_SIZES_CM:
+            raise ValueError(f"{source}: sizes_cm must be {sizes}, got {s!r}")
+    for p in g["porosities"]:
+        if not (isinstance(p, (int, float)) and 0.0 < p < 1.0):
+            raise ValueError(f"{source}: porosity {p!r} outside (0, 1)")
+    for key in ("hold_forces_N", "squeeze_forces_N"):
+        for f in g[key]:
+            if not (isinstance(f, (int, float)) and 0.0 < f <= FORCE_LIMIT_N):
+                raise ValueError(f"{source}: {key} value {f!r} outside (0, {FORCE_LIMIT_N}] N")
+    for s in g["seeds"]:
+        if not isinstance(s, int) or isinstance(s, bool) or s < 0:
+            raise ValueError(f"{source}: seeds must be non-negative integers, got {s!r}")
+    r = grid["radius_m"]
+    if not (isinstance(r, (int, float)) and 0.0 < r < 0.05):
+        raise ValueError(f"{source}: radius_m {r!r} outside (0, 0.05) m")
+    g["radius_m"] = float(r)
+    return g
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One grid point: its parameters and what ``make_config`` receives."""
+
+    params: dict[str, Any]
+    radius: float
+    overrides: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def run_id(self) -> str:
+        return run_id(self.params)
+
+
+def expand_grid(grid: Mapping[str, Any]) -> list[RunSpec]:
+    """Every run of a validated grid, in a fixed order (size, porosity, hold, squeeze, seed)."""
+    specs = []
+    for size in grid["sizes_cm"]:
+        for por in grid["porosities"]:
+            for fh in grid["hold_forces_N"]:
+                for fs in grid["squeeze_forces_N"]:
+                    for seed in grid["seeds"]:
+                        params = {
+                            "size_cm": int(size),
+                            "porosity": float(por),
+                            "F_hold": float(fh),
+                            "F_squeeze": float(fs),
+                            "seed": int(seed),
+                        }
+                        specs.append(RunSpec(params, grid["radius_m"], dict(grid["overrides"])))
+    return specs
+
+
+# --------------------------------------------------------------------------------------
+# Executing one run (in a worker process)
+
+
+def _resolve(ref: Any, default: str) -> Callable[..., Any]:
+    ref = default if ref is None else ref
+    if callable(ref):
+        return ref  # type: ignore[no-any-return]
+    module, _, attr = str(ref).partition(":")
+    try:
+        obj = getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError) as exc:
+        raise RuntimeError(
+            f"cannot load {ref!r}: {exc}"
+            + (
+                " (this build of rmi_sph has no trial runner yet; pass runner=/make_config=)"
+                if module == "rmi_sph"
+                else ""
+            )
+        ) from exc
+    return obj  # type: ignore[no-any-return]
+
+
+def is_done(run_dir: Path, retry_failed: bool = False) -> bool:
+    """Whether the run in ``run_dir`` needs no work: its run file exists, or it failed and
+    failures are not retried."""
+    if (run_dir / RUN_FILE).exists():
+        return True
+    return (not retry_failed) and (run_dir / ERROR_FILE).exists()
+
+
+def _config_of(spec: RunSpec, make_config: Any) -> dict[str, Any]:
+    """The trial config the engine builds for ``spec`` (``make_config`` or
+    ``rmi_sph.trial_config``)."""
+    make = _resolve(make_config, "rmi_sph:trial_config")
+    p = spec.params
+    config: dict[str, Any] = make(
+        p["size_cm"],
+        p["porosity"],
+        p["F_hold"],
+        p["F_squeeze"],
+        spec.radius,
+        p["seed"],
+        **spec.overrides,
+    )
+    return config
+
+
+def _configs_of(specs: list[RunSpec], make_config: Any) -> dict[str, dict[str, Any]]:
+    """Every run's trial config by run id, built before anything is written: an override or
+    value the engine refuses would otherwise fail each run of the grid one by one, recorded
+    as failed. Raises ``ValueError`` naming the first such run and the engine's message."""
+    import rmi_sph
+
+    configs: dict[str, dict[str, Any]] = {}
+    for spec in specs:
+        try:
+            configs[spec.run_id] = _config_of(spec, make_config)
+        except rmi_sph.ConfigError as exc:
+            raise ValueError(f"run {spec.run_id}: {exc} (no run was started)") from exc
+    return configs
+
+
+def _differences(old: Any, new: Any, path: str = "") -> list[str]:
+    """Dotted paths where two JSON values differ, with both values."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        out: list[str] = []
+        for k in sorted(set(old) | set(new)):
+            sub = f"{path}.{k}" if path else str(k)
+            if k not in old or k not in new:
+                was = repr(old[k]) if k in old else "<absent>"
+                now = repr(new[k]) if k in new else "<absent>"
+                out.append(f"{sub}: {was} -> {now}")
+            else:
+                out.extend(_differences(old[k], new[k], sub))
+        return out
+    return [] if old == new else [f"{path}: {old!r} -> {new!r}"]
+
+
+def check_stale(
+    specs: Iterable[RunSpec], runs_root: Path, configs: Mapping[str, dict[str, Any]]
+) -> None:
+    """Refuse to resume over finished runs that the current engine would configure
+    differently (a changed default, say): their data would silently mix two physics.
+    ``configs``: the config the engine builds now, by run id.
+
+    Raises ``ValueError`` naming the number of stale runs, one of them and the fields that
+    differ; the caller removes them or sweeps into a new directory.
+    """
+    stale: list[tuple[str, list[str]]] = []
+    for spec in specs:
+        path = run_path(runs_root, spec.params)
+        if not path.exists():
+            continue
+        stored = read_run_meta(path)["config"]
+        diff = _differences(stored, json.loads(json.dumps(configs[spec.run_id])))
+        if diff:
+            stale.append((spec.run_id, diff))
+    if stale:
+        run_id, diff = stale[0]
+        raise ValueError(
+            f"{len(stale)} finished run(s) under {runs_root} were made with another trial config "
+            f"than this engine builds now, e.g. {run_id}: "
+            + "; ".join(diff[:4])
+            + f". Sweep into a new --out directory, or delete {runs_root} to recompute them."
+        )
+
+
+def _status_of_exception(exc: BaseException) -> str:
+    names = {c.__name__ for c in type(exc).__mro__}
+    return "unstable" if "SimulationUnstableError" in names else "failed"
+
+
+def execute_run(
+    spec: RunSpec,
+    config: dict[str, Any],
+    runs_root: str,
+    runner: Any = None,
+    threads_per_run: int = 1,
+    retry_failed: bool = False,
+) -> dict[str, Any]:
+    """Run one grid point unless it is done, and store its run file or error record.
+    ``config`` is the trial config :func:`run_sweep` built (and the engine checked) for
+    ``spec`` before the sweep started; the runner gets it as it is.
+
+    Returns ``{"run_id", "status", "wall_s", "error"}`` with status ``ok``, ``failed``,
+    ``unstable`` or ``skipped``. Never raises for a failing runner; raises only if the
+    output directory cannot be written.
+    """
+    path = run_path(runs_root, spec.params)
+    rdir = path.parent
+    if is_done(rdir, retry_failed):
+        return {"run_id": spec.run_id, "status": "skipped", "wall_s": 0.0, "error": None}
+    t0 = time.perf_counter()
+    try:
+        run = _resolve(runner, "rmi_sph:run_trial")
+        result = run(config, num_threads=threads_per_run)
+        wall = time.perf_counter() - t0
+        outcome = dict(result["outcome"])
+        outcome.setdefault("wall_s", wall)  # the engine's own figure wins when given
+        outcome["sweep_wall_s"] = wall  # the runner as this worker saw it
+        write_run(path, result["columns"], config, spec.params, outcome)
+    except (Exception, KeyboardInterrupt) as exc:  # noqa: BLE001 - recorded, sweep goes on
+        if isinstance(exc, KeyboardInterrupt):
+            raise
+        wall = time.perf_counter() - t0
+        status = "failed" if isinstance(exc, RunFileError) else _status_of_exception(exc)
+        error = f"{type(exc).__name__}: {exc}"
+        write_error(
+            rdir,
+            spec.params,
+            {
+                "status": status,
+                "error": error,
+                "traceback": traceback.format_exc(),
+                "wall_s": wall,
+                "config": config,
+            },
+        )
+        return {"run_id": spec.run_id, "status": status, "wall_s": wall, "error": error}
+    (rdir / ERROR_FILE).unlink(missing_ok=True)  # a retried run that now succeeded
+    return {"run_id": spec.run_id, "status": "ok", "wall_s": wall, "error": None}
+
+
+# --------------------------------------------------------------------------------------
+# Index
+
+
+def _outcome_row(meta: Mapping[str, Any]) -> dict[str, Any]:
+    o = dict(meta.get("outcome", {}))
+    row: dict[str, Any] = {
+        "lift_success": o.pop("lift_success", None),
+        "stable_squeeze": o.pop("stable_squeeze", None),
+        "failure": o.pop("failure", None),
+        "initial_water": o.pop("initial_water", None),
+        "final_water": o.pop("final_water", None),
+        "wall_s": o.pop("wall_s", None),
+    }
+    removed = o.pop("water_removed", None) or {}
+    for ph in PHASES:
+        row[f"water_removed_{ph}"] = removed.get(ph)
+    # Any further scalar the engine reports (particle counts, steps, ...), flattened one level.
+    for k, v in o.items():
+        if isinstance(v, Mapping):
+            for k2, v2 in v.items():
+                if isinstance(v2, (bool, int, float, str)) or v2 is None:
+                    row[f"{k}_{k2}"] = v2
+        elif isinstance(v, (bool, int, float, str)) or v is None:
+            row[k] = v
+    return row
+
+
+#: The columns every index has, in order, with their types (engine extras follow them).
+INDEX_SCHEMA: dict[str, Any] = {
+    "run_id": pl.String,
+    "status": pl.String,
+    "error": pl.String,
+    "path": pl.String,
+    "size_cm": pl.Int64,
+    "porosity": pl.Float64,
+    "F_hold": pl.Float64,
+    "F_squeeze": pl.Float64,
+    "seed": pl.Int64,
+    "lift_success": pl.Boolean,
+    "stable_squeeze": pl.Boolean,
+    "failure": pl.String,
+    "initial_water": pl.Float64,
+    "final_water": pl.Float64,
+    **{f"water_removed_{ph}": pl.Float64 for ph in PHASES},
+    "wall_s": pl.Float64,
+    "n_records": pl.Int64,
+    "duration_s": pl.Float64,
+}
+
+
+def build_index(out_dir: str | os.PathLike[str], write: bool = True) -> pl.DataFrame:
+    """One row per run directory under ``OUT/runs`` (run file or error record), sorted by
+    run id, and (if ``write``) stored atomically as ``OUT/index.parquet``.
+
+    Columns: ``run_id``, ``status`` (ok / unstable / failed), ``error``, ``path`` (relative to
+    OUT), the parameters ``size_cm, porosity, F_hold, F_squeeze, seed``, ``lift_success``,
+    ``stable_squeeze``, ``failure``, ``initial_water`` and ``final_water`` (kg),
+    ``water_removed_<phase>`` (kg, null where the phase was not reached), ``wall_s`` (s, the
+    engine's figure if it gives one), ``sweep_wall_s`` (s, measured around the runner),
+    ``n_records``, ``duration_s`` (simulated s), and any other scalar the outcome holds
+    (e.g. particle counts). A run file whose outcome ``failure`` mentions "unstable" has
+    status ``unstable``.
+    """
+    out = Path(out_dir)
+    df = index_frame(out / RUNS_SUBDIR, out)
+    if write:
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(out / INDEX_FILE, lambda f: df.write_parquet(f))
+    return df
+
+
+def index_frame(root: Path, rel_to: Path) -> pl.DataFrame:
+    """The index rows (see :func:`build_index`) of every run directory below ``root``, with
+    ``path`` relative to ``rel_to``; an empty frame with the index columns if there is none."""
+    rows: list[dict[str, Any]] = []
+    seen: set[Path] = set()
+    for path in sorted(root.rglob(RUN_FILE)) if root.exists() else []:
+        seen.add(path.parent)
+        meta = read_run_meta(path)
+        stats = (
+            pl.scan_parquet(path)
+            .select(pl.len().alias("n"), (pl.col("time").max() - pl.col("time").min()).alias("d"))
+            .collect()
+        )
+        orow = _outcome_row(meta)
+        failure = orow.get("failure")
+        rows.append(
+            {
+                "run_id": run_id(meta["params"]),
+                "status": "unstable" if failure and "unstable" in str(failure).lower() else "ok",
+                "error": None,
+                "path": path.relative_to(rel_to).as_posix(),
+                **{k: meta["params"][k] for k in PARAM_KEYS},
+                **orow,
+                "n_records": int(stats["n"][0]),
+                "duration_s": float(stats["d"][0]),
+            }
+        )
+    for epath in sorted(root.rglob(ERROR_FILE)) if root.exists() else []:
+        if epath.parent in seen:
+            continue
+        rec = json.loads(epath.read_text())
+        params = rec["params"]
+        rows.append(
+            {
+                "run_id": run_id(params),
+                "status": rec.get("status", "failed"),
+                "error": rec.get("error"),
+                "path": epath.relative_to(rel_to).as_posix(),
+                **{k: params[k] for k in PARAM_KEYS},
+                "wall_s": rec.get("wall_s"),
+            }
+        )
+    extra = sorted({k for r in rows for k in r} - set(INDEX_SCHEMA))
+    columns = list(INDEX_SCHEMA) + extra
+    data = {c: [r.get(c) for r in rows] for c in columns}
+    return pl.DataFrame(
+        {c: pl.Series(c, data[c], dtype=INDEX_SCHEMA.get(c), strict=False) for c in columns}
+    ).sort("run_id")
+
+
+# --------------------------------------------------------------------------------------
+# Sweep
+
+
+@dataclass
+class SweepResult:
+    """Counts of one sweep call and the index it left behind."""
+
+    total: int
+    skipped: int
+    ok: int
+    failed: int
+    unstable: int
+    wall_s: float
+    index: pl.DataFrame
+
+    def summary(self) -> str:
+        return (
+            f"{self.total} runs: {self.skipped} already done, {self.ok} ok, "
+            f"{self.failed} failed, {self.unstable} unstable in {self.wall_s:.1f} s"
+        )
+
+
+def _clean_temporaries(out: Path) -> int:
+    """Remove temporaries left by a killed sweep (``.<name>.<random>.tmp``); returns how many."""
+    n = 0
+    for tmp in list(out.glob(f".*{TMP_SUFFIX}")) + list(
+        (out / RUNS_SUBDIR).rglob(f".*{TMP_SUFFIX}")
+    ):
+        tmp.unlink(missing_ok=True)
+        n += 1
+    return n
+
+
+@contextlib.contextmanager
+def _sweep_lock(out: Path) -> Iterator[None]:
+    """Exclusive lock on ``OUT/.sweep.lock`` for the sweep's duration: two sweeps never write
+    one directory at once. The kernel drops the lock when its holder dies, even by kill -9."""
+    f = open(out / LOCK_FILE, "a+b")  # noqa: SIM115 - held for the whole sweep
+    try:
+        try:
+            import fcntl
+
+            fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except ImportError:  # pragma: no cover - not POSIX: no lock
+            pass
+        except BlockingIOError as exc:
+            raise RuntimeError(f"another sweep is writing {out} (lock {out / LOCK_FILE})") from exc
+        yield
+    finally:
+        f.close()
+
+
+def _check_grid_file(out: Path, grid: Mapping[str, Any] | None) -> None:
+    if grid is None:
+        return
+    gpath = out / GRID_FILE
+    if gpath.exists():
+        old = json.loads(gpath.read_text())
+        if old != json.loads(json.dumps(grid)):
+            raise ValueError(
+                f"{out} holds a sweep of another grid ({gpath}); use a new --out directory "
+                "or remove grid.json if the runs may be mixed"
+            )
+    else:
+        atomic_write_json(gpath, grid)
+
+
+def run_sweep(
+    specs: Iterable[RunSpec],
+    out_dir: str | os.PathLike[str],
+    *,
+    runner: Any = None,
+    make_config: Any = None,
+    backend: str = "local",
+    workers: int | None = None,
+    threads_per_run: int = 1,
+    retry_failed: bool = False,
+    progress: bool = True,
+    grid: Mapping[str, Any] | None = None,
+) -> SweepResult:
+    """Execute every run of ``specs`` that is not done into ``out_dir`` and rebuild the index.
+
+    ``backend`` ``"local"``: a process pool of ``workers`` spawned processes (default
+    ``cpu_count // threads_per_run``; ``workers=0`` runs in this process, for debugging).
+    ``"ray"``: one Ray task per run with ``num_cpus=threads_per_run`` (``ray.init()`` on the
+    local machine, or the cluster named by ``$RAY_ADDRESS``). Each run gets
+    ``num_threads=threads_per_run``. Prints a tqdm progress bar (runs done, failures, ETA)
+    unless ``progress`` is false. ``grid`` is stored as ``grid.json`` on the first sweep
+    and must match on later ones.
+    """
+    specs = list(specs)
+    configs = _configs_of(specs, make_config)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    with _sweep_lock(out):
+        _check_grid_file(out, grid)
+        _clean_temporaries(out)
+        return _sweep_locked(
+            specs,
+            configs,
+            out,
+            runner,
+            backend,
+            workers,
+            threads_per_run,
+            retry_failed,
+            progress,
+        )
+
+
+def _sweep_locked(
+    specs: list[RunSpec],
+    configs: Mapping[str, dict[str, Any]],
+    out: Path,
+    runner: Any,
+    backend: str,
+    workers: int | None,
+    threads_per_run: int,
+    retry_failed: bool,
+    progress: bool,
+) -> SweepResult:
+    runs_root = out / RUNS_SUBDIR
+    ids = [s.run_id for s in specs]
+    if len(set(ids)) != len(ids):
+        raise ValueError("the grid names some runs twice")
+    if threads_per_run < 1:
+        raise ValueError("threads_per_run must be at least 1")
+    check_stale(specs, runs_root, configs)
+    pending = [s for s in specs if not is_done(run_path(runs_root, s.params).parent, retry_failed)]
+    counts = {"ok": 0, "failed": 0, "unstable": 0}
+    t0 = time.perf_counter()
+
+    from tqdm.auto import tqdm  # type: ignore[import-untyped]
+
+    bar = tqdm(
+        total=len(specs),
+        initial=len(specs) - len(pending),
+        desc="sweep",
+        unit="run",
+        disable=not progress,
+        dynamic_ncols=True,
+    )
+
+    def record(res: Mapping[str, Any]) -> None:
+        st = res["status"]
+        if st in counts:
+            counts[st] += 1
+        if st in ("failed", "unstable"):
+            bar.write(f"[{st}] {res['run_id']}: {res['error']}")
+        bar.update(1)
+        bar.set_postfix(failed=counts["failed"], unstable=counts["unstable"], refresh=False)
+
+    args = (str(runs_root), runner, threads_per_run, retry_failed)
+    try:
+        if not pending:
+            pass
+        elif backend == "local":
+            n = workers if workers is not None else max(1, (os.cpu_count() or 1) // threads_per_run)
+            if n <= 0:
+                for s in pending:
+                    record(execute_run(s, configs[s.run_id], *args))
+            else:
+                _run_local(pending, configs, args, n, record)
+        elif backend == "ray":
+            _run_ray(pending, configs, args, threads_per_run, workers, record)
+        else:
+            raise ValueError(f"unknown backend {backend!r} (local or ray)")
+    finally:
+        bar.close()
+        index = build_index(out)
+    return SweepResult(
+        total=len(specs),
+        skipped=len(specs) - len(pending),
+        ok=counts["ok"],
+        failed=counts["failed"],
+        unstable=counts["unstable"],
+        wall_s=time.perf_counter() - t0,
+        index=index,
+    )
+
+
+def _run_local(
+    pending: list[RunSpec],
+    configs: Mapping[str, dict[str, Any]],
+    args: tuple[Any, ...],
+    workers: int,
+    record: Callable[[Any], None],
+) -> None:
+    """Process pool with spawn. A worker that dies (e.g. a crash in native code) breaks the
+    pool; its runs are retried in a fresh pool, and a run that breaks it twice is recorded
+    as failed."""
+    ctx = multiprocessing.get_context("spawn")
+    attempts: dict[str, int] = {}
+    todo = list(pending)
+    while todo:
+        retry: list[RunSpec] = []
+        with cf.ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=ctx) as pool:
+            futures = {pool.submit(execute_run, s, configs[s.run_id], *args): s for s in todo}
+            for fut in cf.as_completed(futures):
+                spec = futures[fut]
+                try:
+                    record(fut.result())
+                except cf.process.BrokenProcessPool:
+                    attempts[spec.run_id] = attempts.get(spec.run_id, 0) + 1
+                    if attempts[spec.run_id] >= 2:
+                        err = "worker process died twice while running this trial"
+                        write_error(
+                            run_path(args[0], spec.params).parent,
+                            spec.params,
+                            {"status": "failed", "error": err, "wall_s": None},
+                        )
+                        record({"run_id": spec.run_id, "status": "failed", "error": err})
+                    else:
+                        retry.append(spec)
+        todo = retry
+
+
+def _import_ray() -> Any:
+    try:
+        import ray
+    except ImportError as exc:
+        raise RuntimeError(
+            "the ray backend needs Ray: pip install 'rmi[ray]' (or pip install ray)"
+        ) from exc
+    return ray
+
+
+def _run_ray(
+    pending: list[RunSpec],
+    configs: Mapping[str, dict[str, Any]],
+    args: tuple[Any, ...],
+    threads_per_run: int,
+    workers: int | None,
+    record: Callable[[Any], None],
+) -> None:
+    """One Ray task per run (``num_cpus=threads_per_run``); ``ray.init()`` locally or on the
+    cluster of ``$RAY_ADDRESS`` unless Ray is already initialised."""
+    ray = _import_ray()
+    started_here = False
+    if not ray.is_initialized():
+        address = os.environ.get("RAY_ADDRESS") or None
+        kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
+        if address is None:
+            # A local Ray: workers import rmi_learn (and an injected runner) like this process,
+            # and use at most workers x threads_per_run cores if --workers is given.
+            kwargs["runtime_env"] = {
+                "env_vars": {"PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+            }
+            if workers:
+                kwargs["num_cpus"] = workers * threads_per_run
+        ray.init(address=address, **kwargs)
+        started_here = True
+    try:
+        remote = ray.remote(num_cpus=threads_per_run, max_retries=1)(execute_run)
+        refs = {remote.remote(s, configs[s.run_id], *args): s for s in pending}
+        waiting = list(refs)
+        while waiting:
+            done, waiting = ray.wait(waiting, num_returns=1)
+            for ref in done:
+                spec = refs[ref]
+                try:
+                    record(ray.get(ref))
+                except Exception as exc:  # noqa: BLE001 - a lost worker, not a runner error
+                    err = f"ray task failed: {type(exc).__name__}: {exc}"
+                    write_error(
+                        run_path(args[0], spec.params).parent,
+                        spec.params,
+                        {"status": "failed", "error": err, "wall_s": None},
+                    )
+                    record({"run_id": spec.run_id, "status": "failed", "error": err})
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+def estimate_wall_time(per_run_s: float, runs: int, workers: int) -> float:
+    """Wall time (s) of ``runs`` runs of ``per_run_s`` seconds each on ``workers`` parallel
+    workers (whole waves, no overhead)."""
+    return math.ceil(runs / max(1, workers)) * per_run_s
+
+
+def sweep(
+    out_dir: str | os.PathLike[str],
+    *,
+    preset: str | None = None,
+    grid_file: str | os.PathLike[str] | None = None,
+    limit: int | None = None,
+    backend: str = "local",
+    workers: int | None = None,
+    threads_per_run: int = 1,
+    retry_failed: bool = False,
+    progress: bool = True,
+    runner: Any = None,
+    make_config: Any = None,
+) -> SweepResult:
+    """``rmi sweep``: run the grid of ``preset`` or ``grid_file`` (exactly one), or its first
+    ``limit`` points, into ``out_dir`` (see :func:`run_sweep` for the other arguments).
+
+    Raises :class:`~rmi_learn.errors.InputError` for a missing or bad grid and a run the
+    engine refuses, :class:`~rmi_learn.errors.StageFailure` when the sweep cannot start
+    (another sweep holds the lock, the ray backend is missing)."""
+    if not preset and not grid_file:
+        raise InputError("give --preset NAME or --grid FILE")
+    try:
+        grid = load_grid(preset=preset) if preset else load_grid(path=grid_file)
+    except (OSError, ValueError) as exc:
+        raise InputError(exc) from exc
+    specs = expand_grid(grid)
+    if limit is not None:
+        specs = specs[:limit]
+    try:
+        return run_sweep(
+            specs,
+            out_dir,
+            runner=runner,
+            make_config=make_config,
+            backend=backend,
+            workers=workers,
+            threads_per_run=threads_per_run,
+            retry_failed=retry_failed,
+            progress=progress,
+            grid=grid,
+        )
+    except ValueError as exc:
+        raise InputError(exc) from exc
+    except RuntimeError as exc:
+        raise StageFailure(exc) from exc

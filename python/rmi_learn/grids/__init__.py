@@ -1,1 +1,0 @@
-"""Sweep grid presets (JSON): tiny, quick, paper. Read with rmi_learn.sweep.load_grid."""

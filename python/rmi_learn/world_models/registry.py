@@ -1,0 +1,59 @@
+"""The world models by name: :data:`MODELS`, :func:`build` and :func:`load`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from rmi_learn.world_models.arx import LinearARX
+from rmi_learn.world_models.baseline import BaselineWM
+from rmi_learn.world_models.common import WorldModel
+from rmi_learn.world_models.gru import ACGRUWM, StateGRUWM
+from rmi_learn.world_models.mlp import ACMLPWM
+from rmi_learn.world_models.transformer import TransformerWM
+
+#: CLI name -> class
+MODELS: dict[str, type[WorldModel]] = {
+    "baseline": BaselineWM,
+    "state-gru": StateGRUWM,
+    "ac-gru": ACGRUWM,
+    "arx": LinearARX,
+    "ac-mlp": ACMLPWM,
+    "transformer": TransformerWM,
+}
+
+#: Names used in the paper's tables.
+DISPLAY_NAMES: dict[str, str] = {
+    "baseline": "Baseline",
+    "state-gru": "State-GRU-WM",
+    "ac-gru": "AC-GRU-WM",
+    "arx": "Linear-ARX",
+    "ac-mlp": "AC-MLP-WM",
+    "transformer": "Transformer W_T",
+}
+
+def build(config: dict[str, Any]) -> WorldModel:
+    """A fresh model from ``{"kind": ..., **constructor arguments}``."""
+    cfg = dict(config)
+    kind = cfg.pop("kind")
+    if kind not in MODELS:
+        raise ValueError(f"unknown world model {kind!r}; known: {sorted(MODELS)}")
+    return MODELS[kind](**cfg)
+
+
+def load(out_dir: str | Path, which: str = "model") -> tuple[WorldModel, dict[str, Any]]:
+    """Load a trained world model from a ``rmi train-wm`` output directory.
+
+    Returns ``(model, config)``: the model in eval mode with the selected weights
+    (``which="last"`` for the latest), and the run's config.json (``config["model"]`` is the
+    architecture, ``config["extra"]["stats"]`` the standardisation statistics of the data
+    it was trained on: z_mean, z_std (18, SI units), u_mean, u_std (2,)). Inputs to the model
+    are standardised exactly like ``rmi_learn.data.dataset`` windows.
+    """
+    from rmi_learn.trainer import load_weights, read_config
+
+    config = read_config(out_dir)
+    model = build(config["model"])
+    load_weights(model, out_dir, which)
+    model.eval()
+    return model, config

@@ -1,0 +1,324 @@
+"""Training of one world model (Baseline, State-GRU-WM, AC-GRU-WM, Linear-ARX, AC-MLP-WM or
+the causal Transformer W_T) on a built dataset: :func:`train` (``rmi train-wm``).
+
+The run directory gets config.json (model architecture, training settings, data path, size,
+state groups, shuffle flag and the dataset's standardisation statistics), model.safetensors
+(selected weights), metrics.jsonl, summary.json and, for gradient-trained models,
+train_state.pt for ``resume``. Load the result with ``rmi_learn.world_models.load(RUN)``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+from rmi_learn.errors import input_errors
+
+MODEL_CHOICES = ("baseline", "state-gru", "ac-gru", "arx", "ac-mlp", "transformer")
+GROUP_CHOICES = ("LS", "LS+G", "LS+G+C", "ALL")
+
+#: Optimisation defaults of the GRU and MLP models (paper Sec. IV, supplement S3), with the
+#: change-scaled loss (see ``--loss-scale``).
+_GRU_MLP_DEFAULTS: dict[str, Any] = {
+    "lr": 1e-3,
+    "optimizer": "adam",
+    "select": "val_water_mae_g@64",
+    "loss_scale": "change",
+}
+#: Per-model optimisation defaults (paper Sec. IV, supplement S3).
+DEFAULTS: dict[str, dict[str, Any]] = {
+    "state-gru": _GRU_MLP_DEFAULTS,
+    "ac-gru": _GRU_MLP_DEFAULTS,
+    "ac-mlp": _GRU_MLP_DEFAULTS,
+    "transformer": {
+        "lr": 3e-4,
+        "optimizer": "adamw",
+        "weight_decay": 1e-2,
+        "select": "val_water_mae_g_mean",
+        "water_weight": 8.0,
+    },
+}
+#: Settings of a run that ``--resume`` must repeat (they shape the data or the loss).
+RESUME_FIXED = (
+    "size_cm",
+    "state_groups",
+    "shuffle_actions",
+    "debug",
+    "tf_epochs",
+    "water_weight",
+    "huber_delta",
+    "loss_scale",
+)
+#: Huber threshold of the loss in standardised units (torch's default).
+HUBER_DELTA = 1.0
+#: Values of those settings in runs written before they were recorded.
+RESUME_LEGACY: dict[str, Any] = {"huber_delta": HUBER_DELTA, "loss_scale": "state"}
+#: How the continuous channels' errors are scaled in the loss (see ``--loss-scale``).
+LOSS_SCALES = ("state", "change")
+#: Debug mode: windows kept from each split, batch size, teacher-forcing decay epochs.
+DEBUG_TRAIN_WINDOWS = 256
+DEBUG_VAL_WINDOWS = 32
+
+
+def _subset(ws: Any, n: int, seed: int) -> Any:
+    import numpy as np
+
+    from rmi_learn.world_models.common import Subset
+
+    if len(ws) <= n:
+        return ws
+    idx = np.sort(np.random.default_rng([seed, 17]).choice(len(ws), n, replace=False))
+    return Subset(ws, idx)
+
+
+@input_errors(ValueError, TypeError)
+def train(
+    model: str,
+    data: str | Path,
+    out: str | Path,
+    *,
+    size_cm: int | None = None,
+    state_groups: str = "ALL",
+    shuffle_actions: bool = False,
+    epochs: int = 40,
+    patience: int | None = 8,
+    tf_epochs: int = 20,
+    batch_size: int = 128,
+    steps_per_epoch: int | None = None,
+    water_weight: float | None = None,
+    huber_delta: float = HUBER_DELTA,
+    loss_scale: str | None = None,
+    lr: float | None = None,
+    val_windows: int | None = 4096,
+    seed: int = 0,
+    deterministic: bool = False,
+    device: str = "cpu",
+    resume: bool = False,
+    debug: bool = False,
+    progress: bool = True,
+    model_args: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Train one world model into ``out`` and return the run summary (see module doc).
+
+    Gradient-trained models use :class:`rmi_learn.trainer.Trainer` with the world-model loss
+    (gamma 0.98, lambda_c = lambda_f = 0.2; Transformer: water weight 8), teacher forcing
+    decaying linearly from 1 to 0 over ``tf_epochs`` epochs for the recurrent decoders (whose
+    early-stopping patience counts only epochs after that decay), and checkpoint selection on
+    validation free-rollout water MAE (g) at 1.28 s (Transformer: mean over
+    0.16/0.32/0.64/1.28 s). Linear-ARX is fitted in closed form; the Baseline only
+    writes its config. ``model_args`` overrides constructor arguments (e.g. ``hidden``,
+    ``d_model``); an unknown name raises TypeError. ``huber_delta`` is the Huber threshold
+    in standardised units (default 1). ``loss_scale="change"`` (default for the GRU and
+    MLP models; ``"state"``, the paper's, for the Transformer) measures each continuous
+    channel's error in units of its RMS change over the horizon in the training windows
+    (:func:`rmi_learn.world_models.common.change_scale`, stored in config.json as
+    ``channel_scale``) before the Huber loss and the water weight. ``resume`` refuses
+    settings of :data:`RESUME_FIXED` that differ from the first call's.
+
+    Settings or data it cannot train on (an unknown model or constructor argument, no
+    training windows, a resume with other settings) raise
+    :class:`~rmi_learn.errors.InputError`.
+    """
+    import torch
+
+    from rmi_learn.data.dataset import load_dataset
+    from rmi_learn.trainer import TrainConfig, Trainer, count_parameters, seed_everything
+    from rmi_learn.world_models import build
+    from rmi_learn.world_models.common import N_Z, WATER, ShuffledActions, change_scale, wm_loss
+    from rmi_learn.world_models.evaluation import evaluate_rollouts
+
+    if model not in MODEL_CHOICES:
+        raise ValueError(f"unknown model {model!r}")
+    if loss_scale is not None and loss_scale not in LOSS_SCALES:
+        raise ValueError(f"loss_scale must be one of {list(LOSS_SCALES)}, got {loss_scale!r}")
+    if model in ("baseline", "arx") and state_groups != "ALL":
+        raise ValueError(f"--state-groups applies to learned models, not {model}")
+    out = Path(out)
+    ds = load_dataset(data)
+    stats = ds.stats
+    train_ws: Any = ds.windows("train", size_cm=size_cm)
+    val_ws: Any = ds.windows("val", size_cm=size_cm)
+    if len(train_ws) == 0:
+        raise ValueError(f"no training windows in {data} (size {size_cm})")
+    if shuffle_actions:
+        train_ws = ShuffledActions(train_ws, seed=seed)
+        val_ws = ShuffledActions(val_ws, seed=seed + 1)
+    if debug:
+        train_ws = _subset(train_ws, DEBUG_TRAIN_WINDOWS, seed)
+        val_ws = _subset(val_ws, DEBUG_VAL_WINDOWS, seed)
+        tf_epochs = 1
+        batch_size = min(batch_size, 8)
+    z_std = stats.z_std
+
+    seed_everything(seed, deterministic)
+    kw: dict[str, Any] = {"kind": model, **(model_args or {})}
+    if model != "baseline" and model != "arx":
+        kw["state_groups"] = state_groups
+    net = build(kw)
+    extra: dict[str, Any] = {
+        "data": str(Path(data).resolve()),
+        "size_cm": size_cm,
+        "state_groups": state_groups,
+        "shuffle_actions": shuffle_actions,
+        "seed": seed,
+        "debug": debug,
+        "history": train_ws.history if hasattr(train_ws, "history") else None,
+        "horizon": train_ws.horizon if hasattr(train_ws, "horizon") else None,
+        "n_train": len(train_ws),
+        "n_val": len(val_ws),
+        "stats": stats.to_json(),
+    }
+
+    def validate(m: torch.nn.Module, state: Any = None) -> dict[str, float]:
+        if len(val_ws) == 0:
+            return {"val_water_mae_g@64": float("nan"), "val_water_mae_g_mean": float("nan")}
+        r = evaluate_rollouts(m, val_ws, z_std, max_windows=val_windows, device=device)
+        return {f"val_{k}": v for k, v in r.items()}
+
+    if not net.trainable:
+        return _closed_form(net, model, out, train_ws, validate, extra, resume)
+
+    d = DEFAULTS[model]
+    extra["tf_epochs"] = tf_epochs
+    if water_weight is None:
+        water_weight = float(d.get("water_weight", 1.0))
+    extra["water_weight"] = water_weight
+    extra["huber_delta"] = huber_delta
+    if loss_scale is None:
+        loss_scale = str(d.get("loss_scale", "state"))
+    extra["loss_scale"] = loss_scale
+    cw = torch.ones(N_Z)
+    cw[WATER] = water_weight
+    scale = None
+    if loss_scale == "change":
+        # Targets and histories do not depend on the pairing of chunks, so shuffled and
+        # debug subsets give the scale of the windows they train on.
+        scale = change_scale(train_ws)
+        extra["channel_scale"] = [float(v) for v in scale]
+    cfg = TrainConfig(
+        epochs=epochs,
+        batch_size=batch_size,
+        max_steps_per_epoch=steps_per_epoch,
+        lr=lr if lr is not None else d["lr"],
+        optimizer=d["optimizer"],
+        weight_decay=d.get("weight_decay", 0.0),
+        grad_clip=1.0,
+        patience=patience,
+        # Early stopping and selection wait for the end of the teacher-forcing decay: before
+        # it, the free-rollout validation metric judges a model still trained on fed targets.
+        min_epochs=tf_epochs if net.recurrent else 0,
+        select_after=tf_epochs if net.recurrent else 0,
+        select_metric=d["select"],
+        select_mode="min",
+        seed=seed,
+        deterministic=deterministic,
+        device=device,
+        debug=debug,
+        progress=progress,
+    )
+
+    def loss_fn(m: Any, batch: dict[str, torch.Tensor], state: Any) -> Any:
+        tf = max(0.0, 1.0 - state.epoch / tf_epochs) if (m.recurrent and tf_epochs > 0) else 0.0
+        o = m(
+            batch["hist"],
+            batch["hist_mask"],
+            batch["actions"],
+            teacher=batch if tf > 0 else None,
+            tf_prob=tf,
+        )
+        loss, logs = wm_loss(
+            o,
+            batch,
+            channel_weight=cw.to(o["z"].device),
+            channel_scale=None if scale is None else scale.to(o["z"].device),
+            z_keep=m.z_keep,
+            classify=m.classify,
+            huber_delta=huber_delta,
+        )
+        logs["tf_prob"] = tf
+        return loss, logs
+
+    trainer = Trainer(
+        net,
+        loss_fn,
+        train_ws,
+        out,
+        cfg,
+        evaluate=validate,
+        model_config=net.config(),
+        extra_config=extra,
+        resume=resume,
+        resume_fixed=RESUME_FIXED,
+        resume_legacy=RESUME_LEGACY,
+    )
+    t0 = time.perf_counter()
+    summary = trainer.fit()
+    summary["params"] = count_parameters(net)
+    summary["wall_s"] = time.perf_counter() - t0
+    return summary
+
+
+def _closed_form(
+    net: Any,
+    model: str,
+    out: Path,
+    train_ws: Any,
+    validate: Any,
+    extra: dict[str, Any],
+    resume: bool,
+) -> dict[str, Any]:
+    """Baseline (nothing to fit) and Linear-ARX (ridge): same run-directory layout."""
+    from rmi_learn.trainer import (
+        BEST_WEIGHTS,
+        CONFIG_FILE,
+        METRICS_FILE,
+        SUMMARY_FILE,
+        _write_json,
+        save_weights,
+    )
+
+    if (out / CONFIG_FILE).exists():
+        if not resume:
+            raise FileExistsError(
+                f"{out} already holds a run; pass --resume to continue it or choose another "
+                "output directory"
+            )
+        if (out / SUMMARY_FILE).exists():
+            done: dict[str, Any] = json.loads((out / SUMMARY_FILE).read_text(encoding="utf-8"))
+            return done
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    if model == "arx":
+        extra["n_fit"] = net.fit(train_ws)
+    _write_json(
+        out / CONFIG_FILE,
+        {
+            "model": net.config(),
+            "train": None,
+            "extra": extra,
+            "params": 0,
+            "train_size": len(train_ws),
+        },
+    )
+    save_weights(net.state_dict(), out / BEST_WEIGHTS)
+    metrics = validate(net)
+    fit_s = time.perf_counter() - t0
+    with open(out / METRICS_FILE, "a", encoding="utf-8") as f:
+        f.write(
+            json.dumps({"kind": "epoch", "epoch": 1, "step": 0, "fit_s": fit_s, **metrics}) + "\n"
+        )
+    summary = {
+        "finished": True,
+        "stopped_early": False,
+        "epochs": 1,
+        "steps": 0,
+        "select_metric": "val_water_mae_g@64",
+        "best_metric": metrics.get("val_water_mae_g@64"),
+        "best_epoch": 1,
+        "params": 0,
+        "wall_s": fit_s,
+    }
+    _write_json(out / SUMMARY_FILE, summary)
+    return summary

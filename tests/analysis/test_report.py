@@ -1,0 +1,67 @@
+"""The report of a pipeline directory (``rmi report``): sections of stages that have not
+run, our numbers beside the paper's, HTML escaping."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from rmi_learn import cli
+from rmi_learn.analysis.report import Doc, write_report
+
+
+def test_report_of_an_empty_directory_says_what_is_missing(tmp_path: Path) -> None:
+    md, page = write_report(tmp_path)
+    text = md.read_text()
+    for stage in ("sweep", "analysis", "eval-wm", "rank", "closed-loop"):
+        assert f"stage `{stage}` has not run" in text
+    html = page.read_text()
+    assert html.startswith("<!DOCTYPE html>") and html.rstrip().endswith("</html>")
+    assert "<nav>" in html
+    assert cli.main(["report", "--out", str(tmp_path / "nope")]) == 2
+
+
+def _write(path: Path, obj: Any) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(obj))
+
+
+def test_report_puts_our_numbers_beside_the_papers(tmp_path: Path) -> None:
+    rows = [
+        {"method": "Original controller action", "8": 1.5, "10": None, "12": 3.25},
+        {"method": "Flow matching + W_T", "8": 0.75, "10": None, "12": None},
+    ]
+    _write(tmp_path / "tables" / "rank" / "table3_ranking.json", {"rows": rows, "k": 8})
+    _write(
+        tmp_path / "closed_loop" / "table_closed_loop.json",
+        {"sizes": {"8": {"original": {"real_g": 0.5}, "flow": {"selected_real_g": 2.0}}}},
+    )
+    (tmp_path / "closed_loop" / "table_closed_loop.md").write_text(
+        "**Closed loop**\n\n| size | first (g) | selected (g) |\n|---|---|---|\n"
+        "| 8 cm | 4.00 | 2.00 |\n\nReplay fidelity: fine.\n"
+    )
+    md, page = write_report(tmp_path)
+    text = md.read_text()
+    assert "| Original controller action | 1.50 | – | 3.25 |" in text
+    assert "| paper: Original controller action | 2.56 | 4.23 | 4.68 |" in text
+    assert "| paper: Flow matching + W_T | 1.11 | 2.24 | 2.45 |" in text
+    assert "| 8 cm | 4.00 | 2.00 |" in text and "Replay fidelity: fine." in text
+    from rmi_learn.analysis.report import _closed_loop_means
+
+    cl = json.loads((tmp_path / "closed_loop" / "table_closed_loop.json").read_text())
+    assert _closed_loop_means(cl) == {
+        "Original controller action": {"8": 0.5},
+        "Flow matching + W_T": {"8": 2.0},
+    }
+    assert (tmp_path / "report" / "figures" / "fig_ranking.png").stat().st_size > 1000
+    assert 'class="paper"' in page.read_text()
+
+
+def test_doc_escapes_html() -> None:
+    d = Doc()
+    d.h(1, "t")
+    d.p("a <b> & `x<y`")
+    d.table(["h"], [["<i>"]])
+    page = d.html("t")
+    assert "a &lt;b&gt; &amp; <code>x&lt;y</code>" in page and "<td>&lt;i&gt;</td>" in page
