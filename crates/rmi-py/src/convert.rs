@@ -7,9 +7,9 @@
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
-use rmi_sph::controller::Phase;
-use rmi_sph::observe::{Observation, NAMES};
-use rmi_sph::trial::Outcome;
+use rmi_robot::controller::Phase;
+use rmi_robot::observe::{Observation, NAMES};
+use rmi_robot::trial::Outcome;
 
 /// Recorded quantities outside y_t, in run-file order.
 pub const EXTRAS: [&str; 8] =

@@ -9,9 +9,9 @@ use numpy::PyArray1;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList, PyTuple};
-use rmi_sph::controller::Action;
-use rmi_sph::observe::Observation;
-use rmi_sph::Trial;
+use rmi_robot::controller::Action;
+use rmi_robot::observe::Observation;
+use rmi_robot::Trial;
 use std::time::{Duration, Instant};
 
 /// Longest stretch of stepping between two checks for Ctrl-C.
