@@ -356,7 +356,7 @@ fn range(field: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<()> {
 }
 
 /// `lo <= v <= hi` and finite, else an [`RmiError::InvalidConfig`] naming `field`, the range
-/// and `unit`; for the robot layer's configs.
+/// and `unit`; for the configs of crates built on the engine.
 pub fn check_range(field: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<()> {
     range(field, v, lo, hi, unit)
 }

@@ -5,7 +5,10 @@ use crate::world::boundary::{BodyState, Boundary};
 use crate::world::particles::Particles;
 use nalgebra::Vector3;
 
-/// What the per-step hook may touch: velocities after pressure and contact projection.
+/// What the hook of [`Simulation::step_with`](crate::Simulation::step_with) may read and
+/// change: the velocities after the solves and the contact projection, before positions are
+/// integrated, and the bodies' loads of the step. An impulse applied to a particle must add its
+/// reaction to `body_forces` so that the bodies' force read-back stays balanced.
 pub struct ContactStage<'a> {
     /// Dynamic particles (positions at the start of the step).
     pub particles: &'a Particles,

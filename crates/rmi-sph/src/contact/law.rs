@@ -6,7 +6,7 @@ use crate::config::check_range;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-/// A contact that stuck in the previous step: the robot layer's anchor.
+/// A contact that stuck in the previous step, with its anchor in world coordinates.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Stick {
     /// Dynamic particle index.
@@ -18,7 +18,7 @@ pub struct Stick {
 }
 
 /// Coulomb friction between skeleton particles and bodies, solved inside the implicit
-/// system (the robot layer's law, paper Eq. 4, as constraints): every skeleton contact with
+/// system (paper Eq. 4 as constraints): every skeleton contact with
 /// a body in `bodies` first holds its tangential velocity, the body's plus `gain e / dt`
 /// toward its anchor if it has one; a contact whose holding force leaves the static cone
 /// `mu_static N` slides with the kinetic force `mu_kinetic N` along it instead.

@@ -68,7 +68,7 @@ impl ContactMemory {
     }
 
     /// The anchors in world coordinates of the bodies' current poses, sorted by particle and
-    /// body, for [`Friction::anchors`]; `n_fluid` offsets solid indices to particle indices.
+    /// body, for [`Friction::anchors`](super::Friction::anchors); `n_fluid` offsets solid indices to particle indices.
     pub fn sticks(&self, n_fluid: usize, boundary: &Boundary) -> Vec<Stick> {
         let mut out = Vec::new();
         for (s, slot) in self.anchors.iter().enumerate() {

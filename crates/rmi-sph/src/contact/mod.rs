@@ -1,7 +1,7 @@
 //! Particle-body contact: detection, the skeleton's contacts as velocity constraints of the
 //! implicit solves, and Coulomb friction with contact memory (paper Eq. 4, supplement S3-S8).
 //!
-//! - detection and constraints ([`detect`], [`resolve`], [`merge`], [`Contact`]): a
+//! - detection and constraints (`detect.rs`, [`Contact`]): a
 //!   compressible skeleton barely feels Akinci boundary pressure, so its contacts with the
 //!   bodies' analytic shapes hold their normal velocity inside the implicit solves; water gets
 //!   a projection only as a safety net against deep penetration;

@@ -234,7 +234,7 @@ impl Grid {
 
     /// Calls `f(lo, hi)` for the 9 contiguous sorted-slot runs covering the 27 cells around `p`.
     // Always inlined: the caller's loop body lives in `f`, and must end up in the caller's
-    // (possibly AVX2-dispatched, see `cpu.rs`) code.
+    // (possibly AVX2-dispatched, see `rmi_par::cpu`) code.
     #[inline(always)]
     pub fn for_each_run(&self, p: &Vector3<f64>, mut f: impl FnMut(usize, usize)) {
         if self.sorted_idx.is_empty() {

@@ -7,6 +7,6 @@ pub(crate) mod kernel;
 pub(crate) mod lists;
 pub(crate) mod pairsum;
 
-pub use grid::{bounds, Grid};
+pub use grid::{bounds, Grid, SOA_PAD};
 pub use kernel::CubicKernel;
 pub use lists::{Nb, NeighbourLists};

@@ -30,7 +30,7 @@ use crate::world::particles::{Particles, PorousObject, SolidRest, SolidState};
 use crate::world::scene;
 use nalgebra::Vector3;
 
-/// Factor by which [`Simulation::soak`] raises every skeleton's permeability: the pore water
+/// Factor by which the soak of [`Simulation::new`] raises every skeleton's permeability: the pore water
 /// settles within half a second instead of minutes (Darcy flow, slowed by the drag in
 /// proportion to it).
 pub const SOAK_PERMEABILITY_FACTOR: f64 = 1000.0;
@@ -342,7 +342,7 @@ impl std::fmt::Debug for Simulation {
     }
 }
 
-/// Solid rest data accessor for the robot layer and tests.
+/// Skeleton rest data.
 impl Simulation {
     /// Skeleton rest data.
     pub fn rest(&self) -> &SolidRest {

@@ -48,8 +48,8 @@ impl Simulation {
     }
 
     /// The part (in [0, 1]) of each fluid particle that lies inside a sponge's deformed
-    /// volume (see [`crate::world::retention`]) at the current positions; empty before the first
-    /// step or [`Simulation::update_fields`]. Where the water is, particle by particle (e.g.
+    /// volume (see [`cube_inside`](crate::world::cube_inside)) at the current positions;
+    /// empty before the first step or [`Simulation::update_fields`]. Where the water is, particle by particle (e.g.
     /// for output); the retained water a trial reports is [`Simulation::pore_water`].
     /// Computed on demand, with neighbour lists of its own (about a step's neighbour search).
     pub fn retained(&self) -> Vec<f64> {
@@ -70,7 +70,7 @@ impl Simulation {
 
     /// Current sponge volume, pore volume (m^3) and pore-volume-weighted mean saturation of
     /// porous object `k`. Each skeleton particle occupies its sampling volume `d^3` times
-    /// `J = det F` at the current positions ([`elasticity::volume_ratio`], exact for affine
+    /// `J = det F` at the current positions (`elasticity::volume_ratio`, exact for affine
     /// deformation also at the faces), of which the solid part `(1 - phi) d^3` does not
     /// change; saturation from the last step's fields.
     pub fn sponge_volumes(&self, k: usize) -> (f64, f64, f64) {

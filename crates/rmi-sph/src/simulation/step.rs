@@ -61,7 +61,8 @@ impl Simulation {
     }
 
     /// Advances one step; `hook` may modify velocities after the pressure solve and contact
-    /// projection (the robot layer's friction), before positions are integrated.
+    /// projection, before positions are integrated (e.g. friction applied after the solves,
+    /// [`ContactMemory::apply`](crate::contact::ContactMemory::apply)).
     pub fn step_with<F>(&mut self, hook: F) -> Result<&StepStats>
     where
         F: FnOnce(&mut ContactStage<'_>) + Send,

@@ -7,7 +7,7 @@ use rayon::prelude::*;
 /// Lower clamp of the fluid's local porosity where it divides (physics.md sec. 7.3).
 pub const MIN_LOCAL_POROSITY: f64 = 0.05;
 
-/// Outputs of [`compute`]; all indexed by dynamic particle.
+/// Outputs of the density pass; all indexed by dynamic particle.
 #[derive(Clone, Debug, Default)]
 pub struct DensityFields {
     /// Density ratio rho / rho0 (dimensionless).
@@ -135,7 +135,7 @@ fn particle(c: &Ctx, a: usize) -> Fields {
     // `v_a . boundary_grad - boundary_flux`.
     let mut boundary_grad = Vector3::zeros();
     let mut boundary_flux = 0.0;
-    // Bodies act on the skeleton only through contact constraints (contact.rs): boundary
+    // Bodies act on the skeleton only through contact constraints (contact/detect.rs): boundary
     // density under a compressible skeleton would make it float on pressure instead.
     let nbb_len = if fluid { nbb.j.len() } else { 0 };
     for k in 0..nbb_len {

@@ -8,9 +8,10 @@ use crate::solver::elasticity::{stress, ElasticFields};
 use crate::solver::linalg::coarse::BlockRows;
 use nalgebra::{Matrix3, Vector3};
 
-/// The operator's elastic row of solid `s`: [`force`](crate::solver::elasticity::force) from the linearised `prl` plus the
-/// linear (velocity) part of the hourglass springs for velocities `y`, `dt k (y_r - y_s)`,
-/// in one pass over the rest neighbours. The two sums keep separate accumulators, so the
+/// The operator's elastic row of solid `s`: the elastic force
+/// ([`force`](crate::solver::elasticity::force)) from the linearised `prl` plus the linear
+/// (velocity) part of the hourglass springs for velocities `y`, `dt k (y_r - y_s)`, in one
+/// pass over the rest neighbours. The two sums keep separate accumulators, so the
 /// result has the bits of evaluating them one after the other.
 #[inline(always)]
 pub(super) fn linear_row(c: &Ctx, s: usize, prl: &[Matrix3<f64>], y: &[Vector3<f64>]) -> Vector3<f64> {
