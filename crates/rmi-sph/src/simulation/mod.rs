@@ -30,9 +30,9 @@ use crate::world::particles::{Particles, PorousObject, SolidRest, SolidState};
 use crate::world::scene;
 use nalgebra::Vector3;
 
-/// Factor by which the soak of [`Simulation::new`] raises every skeleton's permeability: the pore water
-/// settles within half a second instead of minutes (Darcy flow, slowed by the drag in
-/// proportion to it).
+/// Factor by which the soak of [`Simulation::new`] raises every skeleton's permeability: the
+/// pore water settles within half a second instead of minutes (Darcy flow, slowed by the drag
+/// in proportion to it).
 pub const SOAK_PERMEABILITY_FACTOR: f64 = 1000.0;
 
 /// Largest thread pool a simulation accepts.
