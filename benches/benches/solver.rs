@@ -6,9 +6,7 @@
 //! 12.5 mm dam break and the 5 mm fast sponge preset).
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use rmi_sph::grid::{bounds, Grid};
-use rmi_sph::kernel::CubicKernel;
-use rmi_sph::neighbours::NeighbourLists;
+use rmi_sph::neighbourhood::{bounds, CubicKernel, Grid, NeighbourLists};
 use rmi_sph::{presets, Simulation};
 
 fn radius(var: &str, default: f64) -> f64 {

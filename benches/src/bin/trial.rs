@@ -12,8 +12,8 @@
 //! rest is water pressing on the plates through the boundary pressure.
 
 use rmi_benches::{fail, Args};
+use rmi_robot::trial::{run_trial_with, Trial, TrialConfig};
 use rmi_sph::presets::SPONGE_SIZES;
-use rmi_sph::trial::{run_trial_with, Trial, TrialConfig};
 
 fn main() {
     let args = Args::parse(

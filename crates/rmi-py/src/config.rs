@@ -8,8 +8,9 @@ use crate::errors::to_pyerr;
 use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
+use rmi_robot::TrialConfig;
 use rmi_sph::presets::SPONGE_SIZES;
-use rmi_sph::{RmiError, SimConfig, TrialConfig};
+use rmi_sph::{RmiError, SimConfig};
 use serde_json::{Map, Number, Value};
 
 /// Converts a Python object (dict, list, tuple, number, bool, str, None, numpy scalar or

@@ -9,10 +9,11 @@ use numpy::{PyArray1, PyArray2, PyArrayMethods};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
+use rmi_robot::controller::Phase;
+use rmi_robot::observe::{Observation, NAMES};
+use rmi_robot::trial::Outcome;
 use rmi_sph::config::Shape;
 use rmi_sph::Simulation;
-// The robot layer's types.
-use rmi_sph::{controller::Phase, observe::Observation, observe::NAMES, trial::Outcome};
 
 /// Recorded quantities outside y_t, in run-file order.
 pub const EXTRAS: [&str; 8] =

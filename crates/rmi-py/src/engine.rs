@@ -9,7 +9,7 @@ use crate::held::{self, Held, Stateful};
 use crate::panic::{catch, into_py};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList, PyTuple};
-use rmi_sph::snapshot::Snapshot;
+use rmi_sph::simulation::Snapshot;
 use rmi_sph::{presets, RmiError, SimConfig, Simulation};
 use std::path::{Path, PathBuf};
 
@@ -29,11 +29,7 @@ impl Stateful for Simulation {
         self.snapshot().to_bytes()
     }
     fn from_bytes(bytes: &[u8], threads: Option<usize>) -> rmi_sph::Result<Self> {
-        let snapshot = Snapshot::from_bytes(bytes)?;
-        // The engine restores a snapshot into an existing simulation, rebuilding the scene of
-        // the snapshot's config there; an empty scene is the cheapest one to start from.
-        let mut sim = Simulation::new(SimConfig::default(), threads)?;
-        sim.restore(snapshot)?;
+        let mut sim = Simulation::from_snapshot(Snapshot::from_bytes(bytes)?, threads)?;
         sim.update_fields();
         Ok(sim)
     }

@@ -152,7 +152,7 @@ fn trial_config<'py>(
 /// The default trial configuration as a dict (every field, SI units).
 #[pyfunction]
 fn default_config(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
-    config::to_dict(py, &rmi_sph::TrialConfig::default())
+    config::to_dict(py, &rmi_robot::TrialConfig::default())
 }
 
 /// Checks a trial configuration and returns it complete (defaults filled in) as a dict.
@@ -168,11 +168,11 @@ fn validate_config<'py>(py: Python<'py>, config: &Bound<'py, PyAny>) -> PyResult
 fn _rmi_sph(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
     m.add("__version__", VERSION)?;
-    m.add("OBSERVATION_NAMES", PyTuple::new(py, rmi_sph::observe::NAMES)?)?;
+    m.add("OBSERVATION_NAMES", PyTuple::new(py, rmi_robot::observe::NAMES)?)?;
     m.add("EXTRA_NAMES", PyTuple::new(py, convert::EXTRAS)?)?;
     m.add("ACTION_NAMES", PyTuple::new(py, convert::ACTIONS)?)?;
     // The robot's physical limits and the paper's sponges, so Python never restates them.
-    m.add("FORCE_LIMIT_N", rmi_sph::controller::FORCE_LIMIT)?;
+    m.add("FORCE_LIMIT_N", rmi_robot::controller::FORCE_LIMIT)?;
     let sizes: Vec<(f64, f64, f64)> = rmi_sph::presets::SPONGE_SIZES.iter().map(|s| (s[0], s[1], s[2])).collect();
     m.add("SPONGE_SIZES_M", PyTuple::new(py, sizes)?)?;
     m.add_function(wrap_pyfunction!(engine_info, m)?)?;

@@ -26,7 +26,7 @@ pub fn run_trial<'py>(
     let slot = &mut interrupt;
     let result = py.detach(|| {
         catch(|| {
-            rmi_sph::trial::run_trial_with(cfg, num_threads, |_| {
+            rmi_robot::trial::run_trial_with(cfg, num_threads, |_| {
                 rows += 1;
                 if !rows.is_multiple_of(SIGNAL_ROWS) {
                     return true;

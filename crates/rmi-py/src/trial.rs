@@ -10,8 +10,9 @@ use crate::panic::{catch, into_py};
 use numpy::PyArray1;
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList, PyTuple};
-// The robot layer's types.
-use rmi_sph::{controller::Action, observe::Observation, Trial};
+use rmi_robot::controller::Action;
+use rmi_robot::observe::Observation;
+use rmi_robot::Trial;
 use std::path::{Path, PathBuf};
 
 /// Rows recorded while stepping, at the cadence of `run_trial`.

@@ -9,9 +9,19 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use rmi_wm::model::Inputs;
-use rmi_wm::{GruWorldModel, Spec, Tensor};
+use rmi_wm::{GruWorldModel, Spec, Tensor, WmError};
 
 use crate::panic::{catch, into_py};
+
+/// A rollout's error as the engine's, so that it raises the same `ConfigError` with the same
+/// text and fields.
+fn core_error(e: WmError) -> rmi_sph::RmiError {
+    match e {
+        WmError::InvalidConfig { field, value, expected } => {
+            rmi_sph::RmiError::InvalidConfig { field, value, expected }
+        }
+    }
+}
 
 /// Free rollout of a trained AC-GRU-WM or State-GRU-WM in one native call.
 ///
@@ -59,7 +69,7 @@ impl PyGruForecaster {
             weights.insert(name, Tensor { shape: ro.shape().to_vec(), data });
         }
         let spec = Spec { keep: keep.as_array().to_vec(), assemble, continuous };
-        let model = into_py(catch(|| GruWorldModel::from_state(&weights, spec)))?;
+        let model = into_py(catch(|| GruWorldModel::from_state(&weights, spec).map_err(core_error)))?;
         Ok(PyGruForecaster { model, pool: Mutex::new(None) })
     }
 
@@ -68,7 +78,7 @@ impl PyGruForecaster {
     /// much slower than torch's, so ``rmi_learn`` then keeps inference in torch.
     #[staticmethod]
     fn accelerated() -> bool {
-        rmi_sph::cpu::avx2_enabled()
+        rmi_par::cpu::avx2_enabled()
     }
 
     /// Whether the model reads the commands (AC-GRU-WM).
@@ -132,7 +142,7 @@ impl PyGruForecaster {
         let x =
             Inputs { hist: &h_vec, mask: &m_vec, actions: &u_vec, b: hs[0], l: hs[1], n: us[0], h: us[1], n_u: us[2] };
         let model = &self.model;
-        let f = into_py(py.detach(|| catch(|| model.forecast(x, pool.as_deref()))))?;
+        let f = into_py(py.detach(|| catch(|| model.forecast(x, pool.as_deref()).map_err(core_error))))?;
         let (n, h) = (us[0], us[1]);
         let z = PyArray1::from_vec(py, f.z).reshape([n, h, self.model.n_z()])?.into_any();
         let c = PyArray1::from_vec(py, f.contact_logit).reshape([n, h])?.into_any();

@@ -26,10 +26,11 @@ pub enum Preconditioner {
     /// neighbour term of elasticity.
     BlockJacobi,
     /// Block Jacobi plus a coarse correction on aggregates of `coarse_cell` spacings (the
-    /// translations of each aggregate; see `coarse`): far fewer iterations for a stiff skeleton.
+    /// translations of each aggregate; see `solver/linalg/coarse.rs`): far fewer iterations for a
+    /// stiff skeleton.
     TwoLevel,
-    /// `two_level` for a skeleton of at least `nonpressure::TWO_LEVEL_MIN_SOLIDS` (4,000) free
-    /// particles, where its set-up per step pays for itself; `block_jacobi` below.
+    /// `two_level` for a skeleton of at least [`TWO_LEVEL_MIN_SOLIDS`](crate::solver::TWO_LEVEL_MIN_SOLIDS)
+    /// (4,000) free particles, where its set-up per step pays for itself; `block_jacobi` below.
     Auto,
 }
 
@@ -37,7 +38,7 @@ pub enum Preconditioner {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum WallLayer {
-    /// Sunk [`crate::boundary::wall_depth`] (0.598 d) below the surface, so that water rests
+    /// Sunk [`crate::world::boundary::wall_depth`] (0.598 d) below the surface, so that water rests
     /// half a spacing off a wall, where skeleton contacts hold a sponge's face particles and
     /// where volume-map boundaries (Bender et al. 2019) put water.
     Sunk,
@@ -355,7 +356,7 @@ fn range(field: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<()> {
 }
 
 /// `lo <= v <= hi` and finite, else an [`RmiError::InvalidConfig`] naming `field`, the range
-/// and `unit`; for the robot layer's configs.
+/// and `unit`; for the configs of crates built on the engine.
 pub fn check_range(field: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<()> {
     range(field, v, lo, hi, unit)
 }

@@ -1,8 +1,9 @@
 //! # rmi-sph
 //!
-//! Implicit incompressible porous flow with SPH (Böttcher et al. 2025) for a robot that
-//! grasps, lifts and squeezes a water-filled sponge. Pure Rust, parallel with rayon, f64.
-//! All quantities are SI: metres, seconds, kilograms, newtons, pascals.
+//! Implicit incompressible porous flow with SPH (Böttcher et al. 2025): water, porous
+//! elastic skeletons (sponges) and rigid bodies. Pure Rust, parallel with rayon, f64.
+//! All quantities are SI: metres, seconds, kilograms, newtons, pascals. The robot task built
+//! on it (gripper, controller, trials) is the `rmi-robot` crate.
 //!
 //! Features:
 //! - fluid, porous-skeleton and boundary particle sets; cubic spline kernel, `H = 4 r`,
@@ -10,13 +11,24 @@
 //! - porosity-aware densities, DFSPH factor, local porosity, saturation (Shepard-corrected);
 //! - one strongly coupled implicit CG over all velocities (viscosity, corotated elasticity,
 //!   drag from a permeability, capillary adhesion), preconditioned by block Jacobi plus a
-//!   coarse level on aggregates of particles (two-level deflation, [`coarse`]);
+//!   coarse level on aggregates of particles (two-level deflation);
 //! - porosity-aware relaxed-Jacobi pressure solve with per-material tolerances;
 //! - compressible skeleton, static and kinematic rigid bodies with force read-back;
+//!   skeleton-body contacts as constraints of the implicit solves, Coulomb friction with
+//!   contact memory;
 //! - validated configs, divergence guard, bit-identical snapshots, thread-count-independent
 //!   determinism (each [`Simulation`] owns its rayon pool);
 //! - hot loops compiled twice, for baseline x86-64 and for AVX2 + FMA, chosen at run time
-//!   with the same bits either way ([`cpu`]).
+//!   with the same bits either way (the `rmi-par` crate).
+//!
+//! Modules, by concept:
+//! - [`simulation`]: the state, the step by stage, persistence and queries;
+//! - [`world`]: particles, rigid bodies, scene building, retention;
+//! - [`neighbourhood`]: kernel, grid, neighbour lists;
+//! - [`solver`]: densities, pressure, elasticity, the implicit solve and its linear algebra;
+//! - [`contact`]: contact detection and constraints, friction with contact memory, the step
+//!   hook;
+//! - [`config`] and [`presets`]: what defines a simulation, and ready-made scenes.
 //!
 //! ```no_run
 //! use rmi_sph::{presets, Simulation};
@@ -25,41 +37,20 @@
 //! println!("t = {} s, pressure iterations {}", sim.time(), sim.stats().pressure.iterations);
 //! ```
 
+#![warn(missing_docs)]
 // Solver passes index many parallel per-particle arrays by particle number; iterator chains
 // over one of them would hide that the index is the particle identity.
 #![allow(clippy::needless_range_loop)]
 
-pub mod boundary;
-pub mod coarse;
 pub mod config;
 pub mod contact;
-pub mod controller;
-pub mod cpu;
-pub mod ctx;
-pub mod density;
-pub mod elasticity;
-pub mod error;
-pub mod friction;
-pub mod gate;
-pub mod grid;
-pub mod gripper;
-pub mod kernel;
-pub mod neighbours;
-pub mod nonpressure;
-pub mod observe;
-pub mod pairsum;
-pub mod par;
-pub mod particles;
+mod error;
+pub mod neighbourhood;
 pub mod presets;
-pub mod pressure;
-pub mod retention;
-pub mod scene;
 pub mod simulation;
-pub mod skyline;
-pub mod snapshot;
-pub mod trial;
+pub mod solver;
+pub mod world;
 
 pub use config::SimConfig;
 pub use error::{Result, RmiError};
 pub use simulation::Simulation;
-pub use trial::{run_trial, Trial, TrialConfig};

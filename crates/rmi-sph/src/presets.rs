@@ -36,6 +36,11 @@ pub fn dam_break(radius: f64) -> SimConfig {
 /// The three sponge sizes of the paper (x = squeeze axis, y, z = height), in m.
 pub const SPONGE_SIZES: [[f64; 3]; 3] = [[0.08, 0.08, 0.18], [0.10, 0.10, 0.20], [0.12, 0.12, 0.22]];
 
+/// Time (s) a saturated sponge's pore water settles into the pinned skeleton before a run's
+/// clock starts ([`SceneConfig::soak_time`]): the default of the robot task's trials, and of
+/// the validation cases that compare with them.
+pub const SOAK_TIME: f64 = 0.5;
+
 /// A saturated sponge of `size` (m) standing on a floor, centred at x = y = 0. Each side is
 /// the nearest whole number of particle spacings (`scene::snapped_box`; at r = 8 mm the
 /// 12 x 12 x 22 cm sponge is 12.8 x 12.8 x 22.4 cm), so that the block in the config is the

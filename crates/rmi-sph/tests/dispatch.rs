@@ -1,4 +1,4 @@
-//! The AVX2 copies of the hot loops (`cpu.rs`) give the same bits as the baseline ones.
+//! The AVX2 copies of the hot loops (`crates/rmi-par/src/cpu.rs`) give the same bits as the baseline ones.
 //!
 //! Its own test binary: the dispatch level is process-wide, so no other test may run while
 //! it is switched; the tests here take turns through [`SWITCH`].
@@ -6,11 +6,10 @@
 mod common;
 use common::*;
 use nalgebra::Vector3;
+use rmi_par::cpu;
 use rmi_sph::config::{Preconditioner, ViscosityMode};
-use rmi_sph::grid::{bounds, Grid};
-use rmi_sph::kernel::CubicKernel;
-use rmi_sph::neighbours::NeighbourLists;
-use rmi_sph::{cpu, Simulation};
+use rmi_sph::neighbourhood::{bounds, CubicKernel, Grid, NeighbourLists};
+use rmi_sph::Simulation;
 
 /// Held by each test while it switches the dispatch level.
 static SWITCH: std::sync::Mutex<()> = std::sync::Mutex::new(());

@@ -3,7 +3,6 @@
 mod common;
 use common::*;
 use rmi_sph::config::*;
-use rmi_sph::trial::TrialConfig;
 use rmi_sph::{RmiError, Simulation};
 
 /// The small sponge with each CG preconditioner that has a parallel code path of its own.
@@ -213,7 +212,7 @@ fn soaked_sponges_start_saturated_at_every_size() {
         for porosity in [0.5, 0.7] {
             let mut cfg = rmi_sph::presets::sponge(size, porosity, 0.008);
             cfg.dt = 2e-3;
-            cfg.scene.soak_time = TrialConfig::default().soak_time;
+            cfg.scene.soak_time = rmi_sph::presets::SOAK_TIME;
             let sim = Simulation::new(cfg, Some(2)).unwrap();
             let (_, _, saturation) = sim.sponge_volumes(0);
             let nf = sim.particles().n_fluid;

@@ -386,7 +386,7 @@ fn drain_hanging_block(r: f64, material: PorousMaterial, seconds: f64) -> Draine
     let (z0, height) = (0.10, 0.20);
     let mut cfg = SimConfig { particle_radius: r, dt: 1e-3, ..Default::default() };
     // Saturated as a trial's sponge is: the pore water settled into the skeleton first.
-    cfg.scene.soak_time = rmi_sph::trial::TrialConfig::default().soak_time;
+    cfg.scene.soak_time = rmi_sph::presets::SOAK_TIME;
     cfg.scene.porous_blocks.push(PorousBlock {
         min: [-0.04, -0.04, z0],
         max: [0.04, 0.04, z0 + height],
@@ -587,7 +587,7 @@ impl Squeezed {
 fn squeeze_saturated_cube(r: f64, side: f64, strain: f64, nu: f64) -> Squeezed {
     let d = 2.0 * r;
     let mut cfg = rmi_sph::presets::sponge([side, side, side], 0.6, r);
-    cfg.scene.soak_time = rmi_sph::trial::TrialConfig::default().soak_time;
+    cfg.scene.soak_time = rmi_sph::presets::SOAK_TIME;
     cfg.scene.porous_blocks[0].material.poisson_ratio = nu;
     cfg.scene.bodies.push(BodyConfig {
         name: "plate".into(),

@@ -40,11 +40,11 @@ impl Mat {
 /// `out[r] += x[r] * w` for `r < rows`, where row `r` of `x` starts at `r * ldx` (its first
 /// `w.rows` values are used) and row `r` of `out` at `r * ldo` (its first `w.cols` values).
 ///
-/// Runs a copy compiled for AVX2 + FMA where the CPU has them (the engine's dispatch,
-/// [`rmi_sph::cpu::hot`]); elsewhere the fused multiply-adds are library calls: the same
+/// Runs a copy compiled for AVX2 + FMA where the CPU has them (the dispatch the engine uses too,
+/// [`rmi_par::cpu::hot`]); elsewhere the fused multiply-adds are library calls: the same
 /// bits, many times slower.
 pub fn acc(x: &[f32], ldx: usize, rows: usize, w: &Mat, out: &mut [f32], ldo: usize) {
-    rmi_sph::cpu::hot(
+    rmi_par::cpu::hot(
         #[inline(always)]
         || acc_body(x, ldx, rows, w, out, ldo),
     );

@@ -41,7 +41,7 @@ impl GruLayer {
         let hd = self.hidden;
         fill_rows(gh, rows, &self.b_hh);
         acc(h, hd, rows, &self.w_hh, gh, 3 * hd);
-        rmi_sph::cpu::hot(
+        rmi_par::cpu::hot(
             #[inline(always)]
             || {
                 for r in 0..rows {

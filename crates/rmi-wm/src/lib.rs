@@ -12,14 +12,17 @@
 //! - [`gru`]: GRU layers (torch's gate equations) and the two-layer command encoder.
 //! - [`model`]: the world model, its construction from named weights, and the rollout.
 //! - [`synthetic`]: random weights of a given shape, for tests and benchmarks.
+//! - [`error`]: what construction and rollout calls report.
 //!
 //! Everything is `f32`, as the trained models are. Results do not depend on the thread
 //! count: rows (chunks) are independent, and every output element is accumulated in the same
 //! order however rows are grouped.
 
+pub mod error;
 pub mod gemm;
 pub mod gru;
 pub mod model;
 pub mod synthetic;
 
+pub use error::{Result, WmError};
 pub use model::{Forecast, GruWorldModel, Inputs, Spec, Tensor};

@@ -9,8 +9,8 @@
 
 use std::collections::HashMap;
 
+use crate::error::{Result, WmError};
 use rayon::prelude::*;
-use rmi_sph::{Result, RmiError};
 
 use crate::gemm::{acc, Mat};
 use crate::gru::{exp, fill_rows, sigmoid, GruLayer, Mlp2};
@@ -91,8 +91,8 @@ pub struct GruWorldModel {
 /// One thread's share of the outputs: group number and its rows of z, contact, friction.
 type Group<'a> = (usize, ((&'a mut [f32], &'a mut [f32]), &'a mut [f32]));
 
-fn shape_err(key: &str, got: &[usize], want: &[usize]) -> RmiError {
-    RmiError::config(key, format!("shape {got:?}"), format!("shape {want:?}"))
+fn shape_err(key: &str, got: &[usize], want: &[usize]) -> WmError {
+    WmError::config(key, format!("shape {got:?}"), format!("shape {want:?}"))
 }
 
 struct Weights<'a>(&'a HashMap<String, Tensor>);
@@ -100,12 +100,12 @@ struct Weights<'a>(&'a HashMap<String, Tensor>);
 impl Weights<'_> {
     fn get(&self, key: &str, want: &[usize]) -> Result<&[f32]> {
         let t =
-            self.0.get(key).ok_or_else(|| RmiError::config(key, "missing", format!("a weight of shape {want:?}")))?;
+            self.0.get(key).ok_or_else(|| WmError::config(key, "missing", format!("a weight of shape {want:?}")))?;
         if t.shape != want || t.data.len() != want.iter().product::<usize>() {
             return Err(shape_err(key, &t.shape, want));
         }
         if let Some(bad) = t.data.iter().find(|v| !v.is_finite()) {
-            return Err(RmiError::config(key, bad, "finite values"));
+            return Err(WmError::config(key, bad, "finite values"));
         }
         Ok(&t.data)
     }
@@ -131,7 +131,7 @@ impl GruWorldModel {
         let n_obs = spec.keep.len();
         let n_z = spec.continuous.len();
         if spec.assemble.len() != n_obs {
-            return Err(RmiError::config(
+            return Err(WmError::config(
                 "spec.assemble",
                 spec.assemble.len(),
                 format!("{n_obs} entries (one per channel)"),
@@ -139,19 +139,19 @@ impl GruWorldModel {
         }
         // The head is [z (n_z) | contact (1) | friction (at least 1)], z not empty.
         if n_z == 0 || n_z + 2 > n_obs {
-            return Err(RmiError::config(
+            return Err(WmError::config(
                 "spec.continuous",
                 format!("{n_z} entries"),
                 format!("1 to {} entries", n_obs.saturating_sub(2)),
             ));
         }
         if let Some(&i) = spec.assemble.iter().chain(&spec.continuous).find(|&&i| i >= n_obs) {
-            return Err(RmiError::config("spec.assemble/continuous", i, format!("indices in [0, {n_obs})")));
+            return Err(WmError::config("spec.assemble/continuous", i, format!("indices in [0, {n_obs})")));
         }
         let w = Weights(state);
         let hh = state
             .get("encoder.weight_hh_l0")
-            .ok_or_else(|| RmiError::config("encoder.weight_hh_l0", "missing", "a GRU encoder weight"))?;
+            .ok_or_else(|| WmError::config("encoder.weight_hh_l0", "missing", "a GRU encoder weight"))?;
         let hidden = hh.shape.get(1).copied().unwrap_or(0);
         if hidden == 0 {
             return Err(shape_err("encoder.weight_hh_l0", &hh.shape, &[384, 128]));
@@ -159,7 +159,7 @@ impl GruWorldModel {
         let layers = (0..).take_while(|i| state.contains_key(&format!("encoder.weight_ih_l{i}"))).count();
         let dec_layers = (0..).take_while(|i| state.contains_key(&format!("decoder.{i}.weight_ih"))).count();
         if dec_layers != layers {
-            return Err(RmiError::config(
+            return Err(WmError::config(
                 "decoder",
                 format!("{dec_layers} layers"),
                 format!("{layers} layers, as the encoder"),
@@ -224,18 +224,18 @@ impl GruWorldModel {
 
     fn check(&self, x: &Inputs<'_>) -> Result<()> {
         let n_obs = self.spec.keep.len();
-        let pos = |field: &str, v: usize| if v == 0 { Err(RmiError::config(field, v, "at least 1")) } else { Ok(()) };
+        let pos = |field: &str, v: usize| if v == 0 { Err(WmError::config(field, v, "at least 1")) } else { Ok(()) };
         pos("histories", x.b)?;
         pos("history length", x.l)?;
         pos("chunks", x.n)?;
         pos("horizon", x.h)?;
         if !x.n.is_multiple_of(x.b) {
-            return Err(RmiError::config("chunks", x.n, format!("a multiple of the {} histories", x.b)));
+            return Err(WmError::config("chunks", x.n, format!("a multiple of the {} histories", x.b)));
         }
         let want = x.b * x.l * n_obs;
         for (field, got) in [("hist", x.hist.len()), ("hist_mask", x.mask.len())] {
             if got != want {
-                return Err(RmiError::config(
+                return Err(WmError::config(
                     field,
                     format!("{got} values"),
                     format!("{} x {} x {n_obs} = {want}", x.b, x.l),
@@ -243,7 +243,7 @@ impl GruWorldModel {
             }
         }
         if x.actions.len() != x.n * x.h * x.n_u {
-            return Err(RmiError::config(
+            return Err(WmError::config(
                 "actions",
                 format!("{} values", x.actions.len()),
                 format!("{} x {} x {}", x.n, x.h, x.n_u),
@@ -251,7 +251,7 @@ impl GruWorldModel {
         }
         if let Some(c) = &self.command {
             if x.n_u != c.w1.rows {
-                return Err(RmiError::config(
+                return Err(WmError::config(
                     "actions",
                     format!("{} commands per step", x.n_u),
                     format!("{}", c.w1.rows),

@@ -5,8 +5,8 @@
 use std::collections::HashMap;
 
 use rayon::ThreadPoolBuilder;
-use rmi_sph::RmiError;
 use rmi_wm::synthetic::{random_state, Dims};
+use rmi_wm::WmError;
 use rmi_wm::{Forecast, GruWorldModel, Inputs, Spec, Tensor};
 
 const N_OBS: usize = 7; // 4 continuous, contact, 2 friction classes
@@ -97,9 +97,9 @@ fn zero_head_gives_the_persistence_forecast() {
 
 #[test]
 fn bad_weights_and_inputs_name_the_field() {
-    let field = |e: RmiError| match e {
-        RmiError::InvalidConfig { field, .. } => field,
-        other => panic!("unexpected error {other}"),
+    let field = |e: WmError| {
+        let WmError::InvalidConfig { field, .. } = e;
+        field
     };
     let mut st = state(3);
     st.get_mut("decoder.1.weight_hh").unwrap().shape = vec![HID, 3 * HID];

@@ -1,0 +1,25 @@
+//! # rmi-robot
+//!
+//! The grasp-lift-squeeze task on the [`rmi_sph`] engine: a parallel gripper's two pads
+//! squeeze a water-filled sponge, lift it and squeeze it again, while the water it holds and
+//! expels is observed every step. All quantities are SI.
+//!
+//! - [`gripper`]: the two pads (kinematic boxes) and their load read-back;
+//! - [`controller`]: hybrid velocity/force regulation and the trial's phase sequence;
+//! - [`gate`]: the lift stability gate;
+//! - [`observe`]: the interaction state `y_t` and the extras recorded beside it;
+//! - [`trial`]: the simulation, pads, contact memory, controller and gate stepped together
+//!   ([`Trial`]), and the scripted trial run to the end ([`run_trial`]).
+//!
+//! Friction between pads and sponge (Coulomb with contact memory) is the engine's
+//! [`rmi_sph::contact`]; a trial keeps its [`ContactMemory`](rmi_sph::contact::ContactMemory).
+
+#![warn(missing_docs)]
+
+pub mod controller;
+pub mod gate;
+pub mod gripper;
+pub mod observe;
+pub mod trial;
+
+pub use trial::{run_trial, Trial, TrialConfig};

@@ -1,0 +1,342 @@
+//! Porosity-aware pressure solve: relaxed Jacobi IISPH in the DFSPH-factor form of
+//! physics.md sec. 2 step 10, with per-material convergence on the mean compression.
+//!
+//! The unknown is kappa = p / rho (m^2/s^2, "pressure over density"); the pressure
+//! acceleration of a fluid pair is `-V (kappa_a + kappa_b) grad W`. The water-water part of
+//! every pair sum (most pairs of any scene) is evaluated in the position-free form of
+//! [`crate::neighbourhood::pairsum`]: each pass writes one 32-byte record per particle that the next pass
+//! gathers, so a pair costs one gather and a four-wide multiply-add. The skeleton's pairs keep
+//! the direct form.
+
+use crate::neighbourhood::pairsum::{self, Frame, Rec4};
+use crate::solver::ctx::Ctx;
+use crate::solver::density::DensityFields;
+use nalgebra::Vector3;
+use rayon::prelude::*;
+use rmi_par as par;
+
+/// Force (N) and torque about the body centre (N m) on one body.
+pub type BodyLoad = (Vector3<f64>, Vector3<f64>);
+
+/// Solver settings resolved from the config.
+#[derive(Clone, Copy, Debug)]
+pub struct PressureSettings {
+    /// Allowed mean compression (fraction).
+    pub max_error: f64,
+    /// Minimum iterations.
+    pub min_iterations: u32,
+    /// Maximum iterations.
+    pub max_iterations: u32,
+    /// Relaxation factor.
+    pub omega: f64,
+    /// Warm start from the previous step.
+    pub warm_start: bool,
+    /// Fraction of the previous pressure used as the warm start.
+    pub warm_start_factor: f64,
+}
+
+/// What one pressure solve did.
+#[derive(Clone, Debug, Default)]
+pub struct PressureStats {
+    /// Iterations performed.
+    pub iterations: u32,
+    /// Final mean compression per material (index 0 = fluid, 1 + k = object k).
+    pub error: Vec<f64>,
+}
+
+/// Work arrays kept between steps to avoid reallocation.
+#[derive(Clone, Debug, Default)]
+pub struct PressureWork {
+    source: Vec<f64>,
+    ap: Vec<Vector3<f64>>,
+    err: Vec<f64>,
+    /// Per particle `[kappa x, kappa]` (the acceleration pass's records).
+    rk: Vec<Rec4>,
+    /// The lists' positions relative to their centre, for the record sums of [`pairsum`].
+    frame: Frame,
+    /// Per particle `[q, q . x]` of the vector field being differentiated (the predicted
+    /// velocity in the source pass, the pressure acceleration in the iterations).
+    rq: Vec<Rec4>,
+}
+
+/// What the water-pair sums read in [`pairsum`] form: the lists' shifted positions, the
+/// neighbours' records and `sum_b V grad W_ab` over the water neighbours.
+#[derive(Clone, Copy)]
+struct WaterPairs<'a> {
+    x: &'a [Vector3<f64>],
+    rec: &'a [Rec4],
+    grad: &'a [Vector3<f64>],
+}
+
+/// The volume factors of physics.md sec. 1 that the pressure passes need, per particle, so
+/// that the pair loops read one number instead of walking particle -> object -> material
+/// (the values are those of [`Ctx::volume_factor`], bit for bit).
+struct Factors {
+    /// For a skeleton particle b: `f(water <- b) = 1 - phi_b`.
+    from_solid: Vec<f64>,
+    /// For a skeleton particle a: `f(a <- b)` for b of a's own material.
+    same: Vec<f64>,
+}
+
+impl Factors {
+    fn new(c: &Ctx) -> Self {
+        let n = c.p.len();
+        let nf = c.p.n_fluid;
+        let mut from_solid = vec![0.0; n];
+        let mut same = vec![0.0; n];
+        for a in nf..n {
+            // The expressions of `Ctx::volume_factor`'s water <- skeleton and same-material arms.
+            from_solid[a] = 1.0 - c.object(a).material.porosity;
+            same[a] = c.volume_factor(a, a);
+        }
+        Factors { from_solid, same }
+    }
+
+    /// `f(a <- b)` for skeleton particles a and b.
+    #[inline(always)]
+    fn solid_pair(&self, c: &Ctx, a: usize, b: usize) -> f64 {
+        if c.p.material[a] == c.p.material[b] {
+            self.same[a]
+        } else {
+            1.0
+        }
+    }
+}
+
+/// Pressure acceleration of particle `a` for the current kappa; `w.rec` holds the records
+/// `[kappa x, kappa]` of the same kappa.
+#[inline(always)]
+fn accel(
+    c: &Ctx,
+    fs: &Factors,
+    a: usize,
+    kappa: &[f64],
+    rho0: &[f64],
+    gb: &[Vector3<f64>],
+    w: WaterPairs,
+) -> Vector3<f64> {
+    let nb = c.nb.of(a);
+    let ka = kappa[a];
+    let v = c.vol;
+    let mut acc = Vector3::zeros();
+    if c.p.is_fluid(a) {
+        // -sum_b V (kappa_a + kappa_b) grad W_ab over the water pairs (see `pairsum`).
+        let t = pairsum::weighted(&nb.j[..nb.n_fluid], &nb.gf()[..nb.n_fluid], w.rec);
+        acc = -(ka * w.grad[a] + v * (w.x[a] * t.0[3] - t.xyz()));
+        for k in nb.n_fluid..nb.j.len() {
+            let b = nb.j[k] as usize;
+            acc -= (fs.from_solid[b] * v * ka) * nb.g(k);
+        }
+    } else {
+        let r0a = rho0[a];
+        for k in nb.n_fluid..nb.j.len() {
+            let b = nb.j[k] as usize;
+            // One symmetric factor: the reference's extra f(b <- a) on kappa_b makes the pair
+            // forces of a compressible skeleton unequal (net force V^2 f (1 - f) grad W
+            // (rho0 kappa_b - rho0 kappa_a)), which pushed resting sponges into the floor.
+            let f_ab = fs.solid_pair(c, a, b);
+            // x / x is exactly 1: skip the division within one material.
+            let ratio = if rho0[b] == r0a { 1.0 } else { rho0[b] / r0a };
+            acc -= (f_ab * v * (ka + ratio * kappa[b])) * nb.g(k);
+        }
+    }
+    acc - ka * gb[a]
+}
+
+/// Divergence-like sum `sum_b f V (q_a - q_b) . grad W_ab` over dynamic neighbours; `w.rec`
+/// holds the records `[q, q . x]` of the same `q`.
+#[inline(always)]
+fn div(c: &Ctx, fs: &Factors, a: usize, q: &[Vector3<f64>], w: WaterPairs) -> f64 {
+    let nb = c.nb.of(a);
+    let v = c.vol;
+    let qa = q[a];
+    let mut s = 0.0;
+    if c.p.is_fluid(a) {
+        let t = pairsum::weighted(&nb.j[..nb.n_fluid], &nb.gf()[..nb.n_fluid], w.rec);
+        s = qa.dot(&w.grad[a]) - v * (w.x[a].dot(&t.xyz()) - t.0[3]);
+        for k in nb.n_fluid..nb.j.len() {
+            let b = nb.j[k] as usize;
+            s += fs.from_solid[b] * v * (qa - q[b]).dot(&nb.g(k));
+        }
+    } else {
+        for k in nb.n_fluid..nb.j.len() {
+            let b = nb.j[k] as usize;
+            s += fs.solid_pair(c, a, b) * v * (qa - q[b]).dot(&nb.g(k));
+        }
+    }
+    s
+}
+
+/// Runs the pressure solve on the predicted velocities `v` (updated in place).
+///
+/// `kappa_dt2` holds kappa * dt^2 of the previous step on entry (warm start) and of this
+/// step on exit. Returns the body reaction forces and torques (N, N m) per body.
+#[allow(clippy::too_many_arguments)]
+pub fn solve(
+    c: &Ctx,
+    dens: &DensityFields,
+    settings: &PressureSettings,
+    rho0: &[f64],
+    v: &mut [Vector3<f64>],
+    kappa: &mut Vec<f64>,
+    kappa_dt2: &mut [f64],
+    work: &mut PressureWork,
+    n_materials: usize,
+) -> (PressureStats, Vec<BodyLoad>) {
+    let n = c.p.len();
+    let dt = c.dt;
+    let dt2 = dt * dt;
+    work.source.resize(n, 0.0);
+    work.ap.resize(n, Vector3::zeros());
+    work.err.resize(n, 0.0);
+    let fs = &Factors::new(c);
+    kappa.resize(n, 0.0);
+    // Per particle `sum_k V_k grad W_ak` over boundary neighbours (1/m; zero for the skeleton:
+    // only water feels boundary pressure, the skeleton meets bodies through contacts).
+    let gb = &dens.boundary_grad;
+    let xl = c.nb.target_positions();
+    assert_eq!(xl.len(), n, "the pressure passes need lists over the dynamic particles");
+    work.frame.rebuild(xl);
+    let x = &work.frame.x;
+    work.rk.resize(n, Rec4::default());
+    work.rq.resize(n, Rec4::default());
+    let vv: &[Vector3<f64>] = v;
+    par::for_each_hot(
+        &mut work.rq,
+        #[inline(always)]
+        |a, r| *r = Rec4::vector_moment(&vv[a], &x[a]),
+    );
+    {
+        let w = WaterPairs { x, rec: &work.rq, grad: &dens.fluid_grad };
+        let kdt2: &[f64] = kappa_dt2;
+        par::for_each_hot3(
+            &mut work.source,
+            kappa,
+            &mut work.rk,
+            #[inline(always)]
+            |a, s, ka, r| {
+                // The walls' part of the velocity divergence, sum V_k (v_a - v_k) . grad W_ak.
+                let bdiv = vv[a].dot(&gb[a]) - dens.boundary_flux[a];
+                let rho_adv = dens.rho_ratio[a] + dt * (div(c, fs, a, vv, w) + bdiv);
+                *s = 1.0 - rho_adv;
+                *ka = if settings.warm_start && rho_adv > 1.0 {
+                    settings.warm_start_factor * kdt2[a].min(2.5e-4) / dt2
+                } else {
+                    0.0
+                };
+                *r = Rec4::scaled_position(*ka, &x[a]);
+            },
+        );
+    }
+    let counts: Vec<f64> =
+        (0..n_materials).map(|m| c.p.material.iter().filter(|&&x| x as usize == m).count().max(1) as f64).collect();
+    let mut stats = PressureStats { iterations: 0, error: vec![0.0; n_materials] };
+    let eta = settings.max_error;
+    loop {
+        {
+            let kap: &[f64] = kappa;
+            let w = WaterPairs { x, rec: &work.rk, grad: &dens.fluid_grad };
+            par::for_each_hot2(
+                &mut work.ap,
+                &mut work.rq,
+                #[inline(always)]
+                |a, ap, r| {
+                    *ap = accel(c, fs, a, kap, rho0, gb, w);
+                    *r = Rec4::vector_moment(ap, &x[a]);
+                },
+            );
+        }
+        {
+            let ap: &[Vector3<f64>] = &work.ap;
+            let source = &work.source;
+            let w = WaterPairs { x, rec: &work.rq, grad: &dens.fluid_grad };
+            par::for_each_hot3(
+                kappa,
+                &mut work.err,
+                &mut work.rk,
+                #[inline(always)]
+                |a, ka, e, r| {
+                    let akappa = dt2 * (div(c, fs, a, ap, w) + ap[a].dot(&gb[a]));
+                    let residual = source[a] - akappa;
+                    *e = (-residual).max(0.0);
+                    let alpha = dens.alpha[a];
+                    *ka = if alpha > 0.0 { (*ka - settings.omega * residual * alpha / dt2).max(0.0) } else { 0.0 };
+                    *r = Rec4::scaled_position(*ka, &x[a]);
+                },
+            );
+        }
+        stats.iterations += 1;
+        let mut converged = true;
+        for (m, em) in stats.error.iter_mut().enumerate() {
+            let mat = &c.p.material;
+            let errs = &work.err;
+            *em = par::sum(n, |a| if mat[a] as usize == m { errs[a] } else { 0.0 }) / counts[m];
+            if *em > eta {
+                converged = false;
+            }
+        }
+        if (converged && stats.iterations >= settings.min_iterations) || stats.iterations >= settings.max_iterations {
+            break;
+        }
+    }
+    // Apply the pressure of the final kappa.
+    {
+        let kap: &[f64] = kappa;
+        let w = WaterPairs { x, rec: &work.rk, grad: &dens.fluid_grad };
+        par::for_each_hot2(
+            v,
+            kappa_dt2,
+            #[inline(always)]
+            |a, va, kt| {
+                *va += dt * accel(c, fs, a, kap, rho0, gb, w);
+                *kt = kap[a] * dt2;
+            },
+        );
+    }
+    let reactions = body_reactions(c, kappa);
+    (stats, reactions)
+}
+
+/// Force and torque of the dynamic particles' pressure on each body: `m_a kappa_a V_k grad W_ak`.
+fn body_reactions(c: &Ctx, kappa: &[f64]) -> Vec<(Vector3<f64>, Vector3<f64>)> {
+    let nbody = c.bnd.bodies.len();
+    let n = c.p.len();
+    let chunk = par::REDUCE_CHUNK;
+    let partial: Vec<Vec<(Vector3<f64>, Vector3<f64>)>> = (0..n.div_ceil(chunk))
+        .into_par_iter()
+        .map(|ci| {
+            let mut acc = vec![(Vector3::zeros(), Vector3::zeros()); nbody];
+            rmi_par::cpu::hot(
+                #[inline(always)]
+                || body_reactions_of(c, kappa, ci * chunk..((ci + 1) * chunk).min(n), &mut acc),
+            );
+            acc
+        })
+        .collect();
+    let mut out = vec![(Vector3::zeros(), Vector3::zeros()); nbody];
+    for p in partial {
+        for (o, q) in out.iter_mut().zip(p) {
+            o.0 += q.0;
+            o.1 += q.1;
+        }
+    }
+    out
+}
+
+/// Adds the loads of the particles in `range` to `acc` (per body), in particle and list order.
+#[inline(always)]
+fn body_reactions_of(c: &Ctx, kappa: &[f64], range: std::ops::Range<usize>, acc: &mut [BodyLoad]) {
+    for a in range {
+        if kappa[a] == 0.0 || !c.p.is_fluid(a) {
+            continue;
+        }
+        let nbb = c.nbb.of(a);
+        for k in 0..nbb.j.len() {
+            let kk = nbb.j[k] as usize;
+            let bi = c.bnd.body[kk] as usize;
+            let f = (c.p.mass[a] * kappa[a] * c.bnd.volume[kk]) * nbb.g(k);
+            acc[bi].0 += f;
+            acc[bi].1 += (c.bnd.x[kk] - c.bnd.bodies[bi].state.position).cross(&f);
+        }
+    }
+}
