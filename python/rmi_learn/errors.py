@@ -5,6 +5,7 @@ where a bug keeps its traceback."""
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import sys
 from types import TracebackType
@@ -43,16 +44,26 @@ class input_errors(contextlib.ContextDecorator):
             raise InputError(exc) from exc
 
 
+#: OS error numbers that say the output cannot be written where the user asked (a full disk
+#: or quota, a read-only file system, a name too long): the user's to fix, not a bug.
+OUTPUT_ERRNOS: frozenset[int] = frozenset(
+    {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENAMETOOLONG}
+)
+
+
 def is_input_error(exc: BaseException) -> bool:
     """Whether ``exc`` says the user's input is wrong (a path that is missing or unreadable,
-    a file that is not JSON, a damaged run file, a config value out of range, or an
-    :class:`InputError` a stage raised for what it caught) rather than that the code is.
-    This is the one place that decides which errors end a command with status 2."""
+    an output directory that cannot be written, a file that is not JSON, a damaged run
+    file, a config value out of range, or an :class:`InputError` a stage raised for what it
+    caught) rather than that the code is. This is the one place that decides which errors
+    end a command with status 2."""
     import rmi_sph
     from rmi_learn.data.runs import RunFileError
 
     paths = (FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError)
     inputs = (PermissionError, json.JSONDecodeError, RunFileError, rmi_sph.ConfigError, InputError)
+    if isinstance(exc, OSError) and exc.errno in OUTPUT_ERRNOS:
+        return True
     return isinstance(exc, (*paths, *inputs))
 
 

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from rmi_learn.cli.argtypes import count
+from rmi_learn.cli.argtypes import count, seed
 from rmi_learn.data.schema import SPONGE_SIZES_CM
 from rmi_learn.errors import StageFailure
 
@@ -46,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--hold", type=float, default=40.0, help="holding force (N)")
     g.add_argument("--squeeze", type=float, default=80.0, help="squeeze force (N)")
     g.add_argument("--radius", type=float, default=0.005, help="particle radius (m)")
-    g.add_argument("--seed", type=count(0), default=0, help="seed of the pore-water jitter")
+    g.add_argument("--seed", type=seed, default=0, help="seed of the pore-water jitter")
     g.add_argument("--dt", type=float, default=None, help="time step (s)")
 
 

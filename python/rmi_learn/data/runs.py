@@ -124,8 +124,11 @@ def atomic_write_bytes(path: str | os.PathLike[str], writer: Any) -> Path:
                 os.fchmod(f.fileno(), 0o666 & ~_UMASK)
             os.fsync(f.fileno())
         os.replace(tmp, dest)
-    except BaseException:
+    except BaseException as exc:
         tmp.unlink(missing_ok=True)
+        if isinstance(exc, OSError) and exc.filename is None and exc.errno is not None:
+            # A failed write (a full disk) names no file; the user needs to know which.
+            raise OSError(exc.errno, exc.strerror, str(dest)) from exc
         raise
     _fsync_dir(dest.parent)
     return dest
@@ -161,12 +164,29 @@ def read_json_source(
         text = resources.files(package).joinpath(f"{preset}.json").read_text()
         source = f"{kind} preset {preset}"
     else:
-        text = Path(path).read_text()
         source = str(path)
+        try:
+            text = Path(path).read_text(encoding="utf-8")
+        except UnicodeDecodeError as exc:
+            where = f"{exc.reason} at byte {exc.start}"
+            raise ValueError(f"{source}: not UTF-8 text ({where})") from None
     try:
         return json.loads(text), source
     except json.JSONDecodeError as exc:
         raise ValueError(f"{source}: not valid JSON: {exc}") from exc
+    except RecursionError:
+        raise ValueError(f"{source}: JSON nested too deeply to be a {kind}") from None
+
+
+def json_kind(value: Any) -> str:
+    """The JSON name of a parsed value's type (object, array, string, number, boolean, null),
+    for messages about a file that holds the wrong kind."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "boolean"
+    kinds = ((Mapping, "object"), (list, "array"), (str, "string"), ((int, float), "number"))
+    return next((name for t, name in kinds if isinstance(value, t)), type(value).__name__)
 
 
 def atomic_write_json(path: str | os.PathLike[str], obj: Any) -> Path:

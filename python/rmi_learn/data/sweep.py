@@ -53,6 +53,7 @@ from rmi_learn.data.runs import (
     RunFileError,
     atomic_write_bytes,
     atomic_write_json,
+    json_kind,
     read_json_source,
     read_run_meta,
     run_id,
@@ -60,7 +61,7 @@ from rmi_learn.data.runs import (
     write_error,
     write_run,
 )
-from rmi_learn.data.schema import FORCE_LIMIT_N, PHASES, SPONGE_SIZES_CM
+from rmi_learn.data.schema import FORCE_LIMIT_N, PHASES, SEED_MAX, SPONGE_SIZES_CM
 from rmi_learn.errors import InputError, StageFailure
 
 PRESETS: tuple[str, ...] = ("tiny", "quick", "study", "paper")
@@ -102,6 +103,8 @@ def load_grid(
 
 def validate_grid(grid: Mapping[str, Any], source: str = "grid") -> dict[str, Any]:
     """Check a grid dict (see :func:`load_grid`) and return a normalised copy."""
+    if not isinstance(grid, Mapping):
+        raise ValueError(f"{source}: a grid is a JSON object, got {json_kind(grid)}")
     unknown = set(grid) - _GRID_KEYS
     if unknown:
         raise ValueError(f"{source}: unknown keys {sorted(unknown)} (allowed {sorted(_GRID_KEYS)})")
@@ -109,15 +112,23 @@ def validate_grid(grid: Mapping[str, Any], source: str = "grid") -> dict[str, An
     missing = [k for k in need if k not in grid]
     if missing:
         raise ValueError(f"{source}: missing keys {missing}")
+    overrides = grid.get("overrides", {})
+    if not isinstance(overrides, Mapping):
+        raise ValueError(
+            f"{source}: overrides must be an object of trial config fields, "
+            f"got {json_kind(overrides)}"
+        )
     g: dict[str, Any] = {
         "name": str(grid.get("name", "custom")),
         "description": str(grid.get("description", "")),
-        "overrides": dict(grid.get("overrides", {})),
+        "overrides": dict(overrides),
     }
     for key in ("sizes_cm", "porosities", "hold_forces_N", "squeeze_forces_N", "seeds"):
         vals = grid[key]
         if not isinstance(vals, list) or not vals:
             raise ValueError(f"{source}: {key} must be a non-empty list")
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vals):
+            raise ValueError(f"{source}: {key} must be a list of numbers, got {vals!r:.80}")
         if len(set(vals)) != len(vals):
             raise ValueError(f"{source}: {key} has duplicates")
         g[key] = list(vals)
@@ -133,8 +144,8 @@ def validate_grid(grid: Mapping[str, Any], source: str = "grid") -> dict[str, An
             if not (isinstance(f, (int, float)) and 0.0 < f <= FORCE_LIMIT_N):
                 raise ValueError(f"{source}: {key} value {f!r} outside (0, {FORCE_LIMIT_N}] N")
     for s in g["seeds"]:
-        if not isinstance(s, int) or isinstance(s, bool) or s < 0:
-            raise ValueError(f"{source}: seeds must be non-negative integers, got {s!r}")
+        if not isinstance(s, int) or not 0 <= s <= SEED_MAX:
+            raise ValueError(f"{source}: seeds must be integers in [0, {SEED_MAX}], got {s!r}")
     r = grid["radius_m"]
     if not (isinstance(r, (int, float)) and 0.0 < r < 0.05):
         raise ValueError(f"{source}: radius_m {r!r} outside (0, 0.05) m")

@@ -10,7 +10,6 @@ with the same load averaging as ``rmi_sph.run_trial``, so both give identical co
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from pathlib import Path
@@ -88,10 +87,16 @@ def simulate(
     return {"columns": columns, "outcome": outcome, "config": cfg, "path": path}
 
 
-def read_config(path: str | os.PathLike[str]) -> Any:
-    """A trial config from a JSON file, as given (``simulate`` checks it). Raises
-    :class:`~rmi_learn.errors.InputError` when the file is not JSON."""
+def read_config(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """A trial config from a JSON file: a JSON object, as given (``simulate`` checks its
+    fields). Raises :class:`~rmi_learn.errors.InputError` when the file is not UTF-8 JSON,
+    nests deeper than the parser allows, or holds anything but an object."""
+    from rmi_learn.data.runs import json_kind, read_json_source
+
     try:
-        return json.loads(Path(path).read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: not valid JSON: {exc}") from exc
+        config, _ = read_json_source(__package__, (), None, path, "trial config")
+    except ValueError as exc:
+        raise InputError(exc) from exc
+    if not isinstance(config, dict):
+        raise InputError(f"{path}: a trial config is a JSON object, got {json_kind(config)}")
+    return config
