@@ -359,20 +359,7 @@ def write_run(
     """
     cols = _validate_columns(columns)
     p = _validate_params(params)
-    df = pl.DataFrame(
-        {
-            name: pl.Series(
-                name,
-                arr,
-                dtype=pl.String
-                if name in _STRING_COLUMNS
-                else pl.Boolean
-                if name in _BOOL_COLUMNS
-                else pl.Float64,
-            )
-            for name, arr in cols.items()
-        }
-    )
+    df = pl.DataFrame({n: pl.Series(n, arr, dtype=_dtype_of(n)) for n, arr in cols.items()})
     meta = {
         META_KEYS["config"]: _dumps(dict(config)),
         META_KEYS["params"]: _dumps(p),
@@ -402,14 +389,73 @@ def read_run_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
     return meta
 
 
+def _dtype_of(name: str) -> pl.DataType:
+    if name in _STRING_COLUMNS:
+        return pl.String()
+    return pl.Boolean() if name in _BOOL_COLUMNS else pl.Float64()
+
+
+def check_run_schema(path: str | os.PathLike[str], schema: Mapping[str, Any]) -> None:
+    """Refuse a run file whose columns lack a name of :data:`RUN_COLUMNS` or hold one with
+    another type than the contract's (f64; ``phase`` string; ``gate_open`` bool): raises
+    :class:`RunFileError` naming the file and the column. Further columns are allowed."""
+    missing = [c for c in RUN_COLUMNS if c not in schema]
+    if missing:
+        raise RunFileError(
+            f"{path}: not a run file of this contract: missing column(s) {missing} "
+            "(see docs/data-contract.md)"
+        )
+    for name in RUN_COLUMNS:
+        want = _dtype_of(name)
+        if schema[name] != want:
+            raise RunFileError(
+                f"{path}: column {name!r} is {schema[name]}, the contract says {want}"
+            )
+
+
+def check_run_values(path: str | os.PathLike[str], df: pl.DataFrame) -> None:
+    """Refuse a run file (already schema-checked) with no rows, a null, a non-finite value
+    where the contract forbids one (NaN only in ``v_res``, inf nowhere) or a ``time`` that
+    does not increase: raises :class:`RunFileError` naming the file and the column."""
+    if df.height == 0:
+        raise RunFileError(f"{path}: a run file needs at least one row")
+    floats = [c for c in RUN_COLUMNS if _dtype_of(c) == pl.Float64()]
+    bad = df.select(
+        [pl.col(c).null_count().alias(f"null:{c}") for c in RUN_COLUMNS]
+        + [
+            (pl.col(c).is_infinite() if c in NAN_ALLOWED else ~pl.col(c).is_finite())
+            .sum()
+            .alias(f"value:{c}")
+            for c in floats
+        ]
+        + [(pl.col("time").diff() <= 0).sum().alias("order:time")]
+    ).row(0, named=True)
+    for key, n in bad.items():
+        if n:
+            kind, name = key.split(":")
+            what = {
+                "null": "null value(s)",
+                "value": "infinite value(s)"
+                if name in NAN_ALLOWED
+                else f"non-finite value(s) (only {sorted(NAN_ALLOWED)} may be NaN)",
+                "order": "step(s) where it does not increase",
+            }[kind]
+            raise RunFileError(f"{path}: column {name!r} has {n} {what}")
+
+
 def read_run(path: str | os.PathLike[str]) -> tuple[pl.DataFrame, dict[str, Any]]:
     """Read a run file: its rows as a polars DataFrame and its metadata
-    (see :func:`read_run_meta`)."""
+    (see :func:`read_run_meta`). The rows are checked against the run-file contract
+    (:func:`check_run_schema`, :func:`check_run_values`), so a file written by other tools
+    cannot carry a NaN, inf or a missing channel into the dataset; raises
+    :class:`RunFileError` naming the file and the column."""
     meta = read_run_meta(path)
     try:
         df = pl.read_parquet(Path(path))
     except pl.exceptions.PolarsError as exc:
         raise _unreadable(path, exc) from exc
+    check_run_schema(path, df.schema)
+    check_run_values(path, df)
     return df, meta
 
 
