@@ -38,6 +38,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="reconstruct the water surface per frame with pysplashsurf (if installed)",
     )
     parser.add_argument("--threads", type=count(1), default=None, help="worker threads")
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace a finished run in --out (refused otherwise)",
+    )
     g = parser.add_argument_group("config from parameters (when no --config is given)")
     g.add_argument(
         "--size", type=int, choices=SPONGE_SIZES_CM, default=10, help="sponge size (cm)"
@@ -71,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
             binary=not args.vtk_ascii,
             include_boundary=args.vtk_boundary,
             surface=args.surface,
+            overwrite=args.overwrite,
         )
     except rmi_sph.ConfigError:
         raise  # bad input: reported by the `rmi` entry point (status 2)
