@@ -28,6 +28,7 @@ reader therefore sees either no file or a complete one, even after ``kill -9``.
 from __future__ import annotations
 
 import functools
+import io
 import json
 import math
 import os
@@ -357,6 +358,18 @@ def write_run(
     NaN or inf. ``config``, ``params`` and ``outcome`` are stored as JSON in the file
     metadata together with the package version and git revision.
     """
+    data = run_file_bytes(columns, config, params, outcome)
+    return atomic_write_bytes(path, lambda f: f.write(data))
+
+
+def run_file_bytes(
+    columns: Mapping[str, Any],
+    config: Mapping[str, Any],
+    params: Mapping[str, Any],
+    outcome: Mapping[str, Any],
+) -> bytes:
+    """The bytes of the run file :func:`write_run` writes (checked the same way), for a
+    process that computes a run on one machine and stores it on another."""
     cols = _validate_columns(columns)
     p = _validate_params(params)
     df = pl.DataFrame({n: pl.Series(n, arr, dtype=_dtype_of(n)) for n, arr in cols.items()})
@@ -367,7 +380,9 @@ def write_run(
         META_KEYS["version"]: __version__,
         META_KEYS["git"]: git_revision(),
     }
-    return atomic_write_bytes(path, lambda f: df.write_parquet(f, metadata=meta))
+    buf = io.BytesIO()
+    df.write_parquet(buf, metadata=meta)
+    return buf.getvalue()
 
 
 def read_run_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
