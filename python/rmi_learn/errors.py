@@ -8,6 +8,7 @@ import contextlib
 import errno
 import json
 import sys
+import unicodedata
 from types import TracebackType
 
 
@@ -84,6 +85,12 @@ def report(command: str, exc: BaseException) -> int | None:
     (see :func:`exit_status`) and return that status; ``None`` (nothing printed) for a bug."""
     status = exit_status(exc)
     if status is not None:
-        text = "interrupted" if status == 130 else str(exc)
+        text = "interrupted" if status == 130 else one_line(str(exc))
         print(f"rmi {command}: {text}", file=sys.stderr)
     return status
+
+
+def one_line(text: str) -> str:
+    """``text`` with its control characters escaped (a line break as ``\\n``): a message
+    that quotes the user's input (a config key with a line break in it) stays one line."""
+    return "".join(repr(c)[1:-1] if unicodedata.category(c) == "Cc" else c for c in text)
