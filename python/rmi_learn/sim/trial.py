@@ -80,14 +80,14 @@ def simulate(
     import rmi_sph
 
     out = Path(out_dir)
+    t0 = time.perf_counter()
+    # The config is validated before anything is written: a rejected one leaves no directory.
+    sim = rmi_sph.Trial(config, num_threads=num_threads, record=True)
     if (out / "run.parquet").exists() and not overwrite:
         raise InputError(
             f"{out} holds a finished run ({out / 'run.parquet'}); "
             "give --overwrite to replace it, or another --out"
         )
-    t0 = time.perf_counter()
-    # The config is validated before anything is written: a rejected one leaves no directory.
-    sim = rmi_sph.Trial(config, num_threads=num_threads, record=True)
     created = not out.exists()
     if overwrite:
         _remove_outputs(out)
