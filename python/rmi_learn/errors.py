@@ -5,8 +5,10 @@ where a bug keeps its traceback."""
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import sys
+import unicodedata
 from types import TracebackType
 
 
@@ -43,16 +45,26 @@ class input_errors(contextlib.ContextDecorator):
             raise InputError(exc) from exc
 
 
+#: OS error numbers that say the output cannot be written where the user asked (a full disk
+#: or quota, a read-only file system, a name too long): the user's to fix, not a bug.
+OUTPUT_ERRNOS: frozenset[int] = frozenset(
+    {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENAMETOOLONG}
+)
+
+
 def is_input_error(exc: BaseException) -> bool:
     """Whether ``exc`` says the user's input is wrong (a path that is missing or unreadable,
-    a file that is not JSON, a damaged run file, a config value out of range, or an
-    :class:`InputError` a stage raised for what it caught) rather than that the code is.
-    This is the one place that decides which errors end a command with status 2."""
+    an output directory that cannot be written, a file that is not JSON, a damaged run
+    file, a config value out of range, or an :class:`InputError` a stage raised for what it
+    caught) rather than that the code is. This is the one place that decides which errors
+    end a command with status 2."""
     import rmi_sph
     from rmi_learn.data.runs import RunFileError
 
     paths = (FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError)
     inputs = (PermissionError, json.JSONDecodeError, RunFileError, rmi_sph.ConfigError, InputError)
+    if isinstance(exc, OSError) and exc.errno in OUTPUT_ERRNOS:
+        return True
     return isinstance(exc, (*paths, *inputs))
 
 
@@ -73,6 +85,12 @@ def report(command: str, exc: BaseException) -> int | None:
     (see :func:`exit_status`) and return that status; ``None`` (nothing printed) for a bug."""
     status = exit_status(exc)
     if status is not None:
-        text = "interrupted" if status == 130 else str(exc)
+        text = "interrupted" if status == 130 else one_line(str(exc))
         print(f"rmi {command}: {text}", file=sys.stderr)
     return status
+
+
+def one_line(text: str) -> str:
+    """``text`` with its control characters escaped (a line break as ``\\n``): a message
+    that quotes the user's input (a config key with a line break in it) stays one line."""
+    return "".join(repr(c)[1:-1] if unicodedata.category(c) == "Cc" else c for c in text)

@@ -305,8 +305,20 @@ def load_weights(
 ) -> torch.nn.Module:
     """Load ``out_dir/<which>.safetensors`` (``model``: the selected weights, ``last``: the
     latest, ``model.ema``: EMA weights) into ``model`` and return it."""
+    from safetensors import SafetensorError
+
+    from rmi_learn.errors import InputError
+
     path = Path(out_dir) / f"{which}.safetensors"
-    model.load_state_dict(load_file(str(path)), strict=strict)
+    try:
+        tensors = load_file(str(path))
+    except SafetensorError as exc:
+        raise InputError(f"{path}: damaged weights file ({exc}); train the run again") from exc
+    try:
+        model.load_state_dict(tensors, strict=strict)
+    except RuntimeError as exc:
+        first = str(exc).strip().splitlines()[0]
+        raise InputError(f"{path}: weights do not fit the model of {CONFIG_FILE}: {first}") from exc
     return model
 
 
@@ -316,7 +328,16 @@ def read_config(out_dir: str | Path) -> dict[str, Any]:
     path = Path(out_dir) / CONFIG_FILE
     if not path.is_file():
         raise FileNotFoundError(f"{out_dir} is not a training run directory (no {CONFIG_FILE})")
-    config: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
+    config = json.loads(path.read_text(encoding="utf-8"))
+    if not isinstance(config, dict) or not isinstance(config.get("model"), dict):
+        from rmi_learn.data.runs import json_kind
+        from rmi_learn.errors import InputError
+
+        got = json_kind(config.get("model") if isinstance(config, dict) else config)
+        raise InputError(
+            f"{path}: a training run's config is a JSON object whose 'model' is an object, "
+            f"got {got}"
+        )
     return config
 
 

@@ -81,6 +81,7 @@ OPTIONS: dict[str, dict[str, tuple[str, bool]]] = {
         "--vtk-boundary": ('False', False),
         "--surface": ('False', False),
         "--threads": ('None', False),
+        "--overwrite": ('False', False),
         "--size": ('10', False),
         "--porosity": ('0.6', False),
         "--hold": ('40.0', False),

@@ -40,6 +40,7 @@ from rmi_learn.data.runs import (
     RunFileError,
     atomic_write_bytes,
     atomic_write_json,
+    check_run_schema,
     json_safe,
     read_run,
     read_run_meta,
@@ -170,7 +171,13 @@ def _normalise_index(df: pl.DataFrame | None) -> pl.DataFrame:
 
 
 def _run_facts(path: Path) -> tuple[set[str] | None, str | None]:
-    """Phases a run file visits and its config ``source`` (``None`` if unreadable)."""
+    """Phases a run file visits and its config ``source`` (``None`` if unreadable). Raises
+    :class:`RunFileError` for a readable file whose columns break the run-file contract."""
+    try:
+        schema = pl.read_parquet_schema(path)
+    except (OSError, pl.exceptions.PolarsError):
+        return None, None
+    check_run_schema(path, schema)
     try:
         phases = pl.read_parquet(path, columns=["phase"])["phase"].unique().to_list()
         source = read_run_meta(path)["config"].get("source")

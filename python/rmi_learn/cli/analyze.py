@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import count
+from rmi_learn.cli.argtypes import count, seed
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=2000,
         help="cluster bootstrap resamples (default 2000)",
     )
-    parser.add_argument("--seed", type=count(0), default=0, help="bootstrap random seed")
+    parser.add_argument("--seed", type=seed, default=0, help="bootstrap random seed")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -12,22 +12,61 @@ import argparse
 import math
 from collections.abc import Callable
 
+from rmi_learn.data.schema import SEED_MAX
 
-def count(low: int) -> Callable[[str], int]:
-    """An integer of at least ``low``."""
+#: Largest count an option takes (epochs, threads, batch sizes, steps): the C ``int`` that
+#: torch and the engine's u32 fields both hold.
+COUNT_MAX = 2**31 - 1
+
+
+def count(low: int, high: int = COUNT_MAX) -> Callable[[str], int]:
+    """An integer in ``[low, high]``; the error names the range (argparse adds the option)."""
+    span = f"an integer in [{low}, {high}]"
 
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"expected an integer >= {low}, got {text!r}"
-            ) from None
-        if value < low:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {value}")
+            raise argparse.ArgumentTypeError(f"expected {span}, got {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"expected {span}, got {value}")
         return value
 
     return parse
+
+
+#: A seed: an integer in [0, SEED_MAX] (the run files' Int64; torch and the engine take it).
+seed = count(0, SEED_MAX)
+
+
+def device(text: str) -> str:
+    """A torch device name whose device exists here: ``cpu`` (no torch import), ``cuda``,
+    ``cuda:N`` or ``mps``. A missing accelerator is a usage error, not a traceback from the
+    first tensor moved to it."""
+    if text == "cpu":
+        return text
+    import torch
+
+    try:
+        dev = torch.device(text)
+    except (RuntimeError, ValueError):
+        raise argparse.ArgumentTypeError(
+            f"expected cpu, cuda, cuda:N or mps, got {text!r}"
+        ) from None
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise argparse.ArgumentTypeError(
+                f"{text}: CUDA is not available on this machine (use --device cpu)"
+            )
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise argparse.ArgumentTypeError(
+                f"{text}: this machine has {torch.cuda.device_count()} CUDA device(s)"
+            )
+    elif dev.type == "mps" and not torch.backends.mps.is_available():
+        raise argparse.ArgumentTypeError(f"{text}: MPS is not available on this machine")
+    elif dev.type not in ("cpu", "cuda", "mps"):
+        raise argparse.ArgumentTypeError(f"expected cpu, cuda, cuda:N or mps, got {text!r}")
+    return text
 
 
 def real(

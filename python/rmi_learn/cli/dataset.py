@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from rmi_learn.cli.argtypes import count
+from rmi_learn.cli.argtypes import seed
 from rmi_learn.errors import InputError, input_errors
 
 
@@ -20,7 +20,7 @@ def _build_args(p: argparse.ArgumentParser, sub: bool) -> None:
     p.add_argument("--runs", default=none, metavar="DIR", help="directory of run files")
     p.add_argument("--out", default=none, metavar="DIR", help="dataset directory")
     seed_default: object = argparse.SUPPRESS if sub else 0
-    p.add_argument("--seed", type=count(0), default=seed_default, help="split seed (default 0)")
+    p.add_argument("--seed", type=seed, default=seed_default, help="split seed (default 0)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

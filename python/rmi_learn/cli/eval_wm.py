@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import count
+from rmi_learn.cli.argtypes import count, device
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="evaluate at most this many evenly spaced windows per size",
     )
     parser.add_argument("--threads", type=count(1), default=1, help="torch CPU threads")
-    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--device", type=device, default="cpu")
     parser.add_argument(
         "--no-latency", action="store_true", help="skip the 8 chunks x 32 steps latency benchmark"
     )

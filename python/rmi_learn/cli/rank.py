@@ -7,7 +7,7 @@ import argparse
 import json
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import count, positive
+from rmi_learn.cli.argtypes import count, device, positive, seed
 from rmi_learn.data.schema import FORCE_LIMIT_N
 
 
@@ -24,10 +24,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--max-windows", type=count(0), default=0, help="per size, evenly spaced subset (0: all)"
     )
     parser.add_argument("--batch-size", type=count(1), default=64, help="windows per batch")
-    parser.add_argument("--seed", type=count(0), default=0)
+    parser.add_argument("--seed", type=seed, default=0)
     parser.add_argument("--force-limit", type=positive, default=FORCE_LIMIT_N, help="N")
     parser.add_argument("--weights", default="model.ema", help="policy weights file stem")
-    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--device", type=device, default="cpu")
     parser.add_argument("--threads", type=count(1), default=None)
 
 

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from rmi_learn.cli.argtypes import count
+from rmi_learn.cli.argtypes import count, seed
 from rmi_learn.data.schema import SPONGE_SIZES_CM
 from rmi_learn.errors import StageFailure
 
@@ -38,6 +38,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="reconstruct the water surface per frame with pysplashsurf (if installed)",
     )
     parser.add_argument("--threads", type=count(1), default=None, help="worker threads")
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace a finished run in --out (refused otherwise)",
+    )
     g = parser.add_argument_group("config from parameters (when no --config is given)")
     g.add_argument(
         "--size", type=int, choices=SPONGE_SIZES_CM, default=10, help="sponge size (cm)"
@@ -46,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--hold", type=float, default=40.0, help="holding force (N)")
     g.add_argument("--squeeze", type=float, default=80.0, help="squeeze force (N)")
     g.add_argument("--radius", type=float, default=0.005, help="particle radius (m)")
-    g.add_argument("--seed", type=count(0), default=0, help="seed of the pore-water jitter")
+    g.add_argument("--seed", type=seed, default=0, help="seed of the pore-water jitter")
     g.add_argument("--dt", type=float, default=None, help="time step (s)")
 
 
@@ -71,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
             binary=not args.vtk_ascii,
             include_boundary=args.vtk_boundary,
             surface=args.surface,
+            overwrite=args.overwrite,
         )
     except rmi_sph.ConfigError:
         raise  # bad input: reported by the `rmi` entry point (status 2)

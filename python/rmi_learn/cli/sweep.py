@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from rmi_learn.cli.argtypes import count
+from rmi_learn.errors import InputError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,6 +50,9 @@ def run(args: argparse.Namespace) -> int:
     from rmi_learn.data.sweep import build_index, sweep
 
     if args.index_only:
+        # Only an existing sweep's index is rebuilt: a mistyped --out must not appear empty.
+        if not Path(args.out).is_dir():
+            raise InputError(f"{args.out} is not a sweep directory (--index-only needs one)")
         df = build_index(args.out)
         print(f"index: {df.height} runs -> {args.out}/index.parquet")
         return 0

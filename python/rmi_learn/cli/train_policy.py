@@ -7,7 +7,7 @@ import argparse
 import json
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import count, counts, non_negative, positive, real
+from rmi_learn.cli.argtypes import count, counts, device, non_negative, positive, real, seed
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -21,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lr", type=positive, default=1e-4)
     parser.add_argument("--weight-decay", type=non_negative, default=1e-6)
     parser.add_argument("--patience", type=count(1), default=12)
-    parser.add_argument("--seed", type=count(0), default=0)
+    parser.add_argument("--seed", type=seed, default=0)
     parser.add_argument("--history", type=count(1), default=16)
     parser.add_argument("--horizon", type=count(4), default=32, help="H_pi, divisible by 4")
     parser.add_argument(
@@ -39,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=1024,
         help="validation windows (evenly spaced subset) for the selection metric",
     )
-    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--device", type=device, default="cpu")
     parser.add_argument("--threads", type=count(1), default=None, help="torch CPU threads")
     parser.add_argument("--max-steps-per-epoch", type=count(1), default=None)
     parser.add_argument("--resume", action="store_true", help="continue the run in --out")

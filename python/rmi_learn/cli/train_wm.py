@@ -13,7 +13,7 @@ import argparse
 import json
 from typing import Any
 
-from rmi_learn.cli.argtypes import count, positive
+from rmi_learn.cli.argtypes import count, device, positive, seed
 from rmi_learn.data.schema import SPONGE_SIZES_CM
 from rmi_learn.errors import InputError
 from rmi_learn.world_models.training import (
@@ -101,9 +101,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=4096,
         help="validate on at most this many evenly spaced windows",
     )
-    parser.add_argument("--seed", type=count(0), default=0)
+    parser.add_argument("--seed", type=seed, default=0)
     parser.add_argument("--deterministic", action="store_true")
-    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--device", type=device, default="cpu")
     parser.add_argument(
         "--threads",
         type=count(1),

@@ -69,7 +69,7 @@ from rmi_learn.data.schema import (
     LEARNING_PHASES,
     OBS,
 )
-from rmi_learn.errors import input_errors
+from rmi_learn.errors import InputError, input_errors
 
 try:  # torch is in the `learn` extra; building the cache does not need it.
     import torch
@@ -398,6 +398,21 @@ def build_dataset(
 # Load and windows
 
 
+def _read_table(path: Path, columns: Sequence[str]) -> pl.DataFrame:
+    """A table of a built dataset; a damaged file (a copy cut short, a full disk) or one
+    without ``columns`` raises :class:`~rmi_learn.errors.InputError` naming it."""
+    try:
+        df = pl.read_parquet(path)
+    except pl.exceptions.PolarsError as exc:
+        raise InputError(
+            f"{path}: damaged dataset file ({exc}); rebuild it with rmi dataset build"
+        ) from exc
+    missing = [c for c in columns if c not in df.columns]
+    if missing:
+        raise InputError(f"{path}: dataset file lacks column(s) {missing}; rebuild it")
+    return df
+
+
 class Dataset:
     """A built dataset (see :func:`load_dataset`).
 
@@ -412,11 +427,12 @@ class Dataset:
         if not info_path.exists():
             raise FileNotFoundError(f"{self.root} is not a built dataset (no dataset.json)")
         self.info: dict[str, Any] = json.loads(info_path.read_text())
-        if self.info.get("format") != FORMAT_VERSION:
-            raise ValueError(f"dataset format {self.info.get('format')} != {FORMAT_VERSION}")
+        if not isinstance(self.info, dict) or self.info.get("format") != FORMAT_VERSION:
+            got = self.info.get("format") if isinstance(self.info, dict) else self.info
+            raise ValueError(f"{info_path}: dataset format {got!r} != {FORMAT_VERSION}")
         self.stats = Stats.from_json(json.loads((self.root / "stats.json").read_text()))
-        self.runs = pl.read_parquet(self.root / "runs.parquet")
-        self.frames = pl.read_parquet(self.root / "frames.parquet")
+        self.runs = _read_table(self.root / "runs.parquet", ("run", "run_id", "split"))
+        self.frames = _read_table(self.root / "frames.parquet", ("run", "t", "segment", *OBS))
         f = self.frames
         self.run_ids: list[str] = self.runs.sort("run")["run_id"].to_list()
         self.row_run = f["run"].to_numpy().astype(np.int64)

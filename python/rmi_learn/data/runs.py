@@ -28,6 +28,7 @@ reader therefore sees either no file or a complete one, even after ``kill -9``.
 from __future__ import annotations
 
 import functools
+import io
 import json
 import math
 import os
@@ -124,8 +125,11 @@ def atomic_write_bytes(path: str | os.PathLike[str], writer: Any) -> Path:
                 os.fchmod(f.fileno(), 0o666 & ~_UMASK)
             os.fsync(f.fileno())
         os.replace(tmp, dest)
-    except BaseException:
+    except BaseException as exc:
         tmp.unlink(missing_ok=True)
+        if isinstance(exc, OSError) and exc.filename is None and exc.errno is not None:
+            # A failed write (a full disk) names no file; the user needs to know which.
+            raise OSError(exc.errno, exc.strerror, str(dest)) from exc
         raise
     _fsync_dir(dest.parent)
     return dest
@@ -161,12 +165,29 @@ def read_json_source(
         text = resources.files(package).joinpath(f"{preset}.json").read_text()
         source = f"{kind} preset {preset}"
     else:
-        text = Path(path).read_text()
         source = str(path)
+        try:
+            text = Path(path).read_text(encoding="utf-8")
+        except UnicodeDecodeError as exc:
+            where = f"{exc.reason} at byte {exc.start}"
+            raise ValueError(f"{source}: not UTF-8 text ({where})") from None
     try:
         return json.loads(text), source
     except json.JSONDecodeError as exc:
         raise ValueError(f"{source}: not valid JSON: {exc}") from exc
+    except RecursionError:
+        raise ValueError(f"{source}: JSON nested too deeply to be a {kind}") from None
+
+
+def json_kind(value: Any) -> str:
+    """The JSON name of a parsed value's type (object, array, string, number, boolean, null),
+    for messages about a file that holds the wrong kind."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "boolean"
+    kinds = ((Mapping, "object"), (list, "array"), (str, "string"), ((int, float), "number"))
+    return next((name for t, name in kinds if isinstance(value, t)), type(value).__name__)
 
 
 def atomic_write_json(path: str | os.PathLike[str], obj: Any) -> Path:
@@ -337,22 +358,21 @@ def write_run(
     NaN or inf. ``config``, ``params`` and ``outcome`` are stored as JSON in the file
     metadata together with the package version and git revision.
     """
+    data = run_file_bytes(columns, config, params, outcome)
+    return atomic_write_bytes(path, lambda f: f.write(data))
+
+
+def run_file_bytes(
+    columns: Mapping[str, Any],
+    config: Mapping[str, Any],
+    params: Mapping[str, Any],
+    outcome: Mapping[str, Any],
+) -> bytes:
+    """The bytes of the run file :func:`write_run` writes (checked the same way), for a
+    process that computes a run on one machine and stores it on another."""
     cols = _validate_columns(columns)
     p = _validate_params(params)
-    df = pl.DataFrame(
-        {
-            name: pl.Series(
-                name,
-                arr,
-                dtype=pl.String
-                if name in _STRING_COLUMNS
-                else pl.Boolean
-                if name in _BOOL_COLUMNS
-                else pl.Float64,
-            )
-            for name, arr in cols.items()
-        }
-    )
+    df = pl.DataFrame({n: pl.Series(n, arr, dtype=_dtype_of(n)) for n, arr in cols.items()})
     meta = {
         META_KEYS["config"]: _dumps(dict(config)),
         META_KEYS["params"]: _dumps(p),
@@ -360,7 +380,9 @@ def write_run(
         META_KEYS["version"]: __version__,
         META_KEYS["git"]: git_revision(),
     }
-    return atomic_write_bytes(path, lambda f: df.write_parquet(f, metadata=meta))
+    buf = io.BytesIO()
+    df.write_parquet(buf, metadata=meta)
+    return buf.getvalue()
 
 
 def read_run_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
@@ -382,14 +404,73 @@ def read_run_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
     return meta
 
 
+def _dtype_of(name: str) -> pl.DataType:
+    if name in _STRING_COLUMNS:
+        return pl.String()
+    return pl.Boolean() if name in _BOOL_COLUMNS else pl.Float64()
+
+
+def check_run_schema(path: str | os.PathLike[str], schema: Mapping[str, Any]) -> None:
+    """Refuse a run file whose columns lack a name of :data:`RUN_COLUMNS` or hold one with
+    another type than the contract's (f64; ``phase`` string; ``gate_open`` bool): raises
+    :class:`RunFileError` naming the file and the column. Further columns are allowed."""
+    missing = [c for c in RUN_COLUMNS if c not in schema]
+    if missing:
+        raise RunFileError(
+            f"{path}: not a run file of this contract: missing column(s) {missing} "
+            "(see docs/data-contract.md)"
+        )
+    for name in RUN_COLUMNS:
+        want = _dtype_of(name)
+        if schema[name] != want:
+            raise RunFileError(
+                f"{path}: column {name!r} is {schema[name]}, the contract says {want}"
+            )
+
+
+def check_run_values(path: str | os.PathLike[str], df: pl.DataFrame) -> None:
+    """Refuse a run file (already schema-checked) with no rows, a null, a non-finite value
+    where the contract forbids one (NaN only in ``v_res``, inf nowhere) or a ``time`` that
+    does not increase: raises :class:`RunFileError` naming the file and the column."""
+    if df.height == 0:
+        raise RunFileError(f"{path}: a run file needs at least one row")
+    floats = [c for c in RUN_COLUMNS if _dtype_of(c) == pl.Float64()]
+    bad = df.select(
+        [pl.col(c).null_count().alias(f"null:{c}") for c in RUN_COLUMNS]
+        + [
+            (pl.col(c).is_infinite() if c in NAN_ALLOWED else ~pl.col(c).is_finite())
+            .sum()
+            .alias(f"value:{c}")
+            for c in floats
+        ]
+        + [(pl.col("time").diff() <= 0).sum().alias("order:time")]
+    ).row(0, named=True)
+    for key, n in bad.items():
+        if n:
+            kind, name = key.split(":")
+            what = {
+                "null": "null value(s)",
+                "value": "infinite value(s)"
+                if name in NAN_ALLOWED
+                else f"non-finite value(s) (only {sorted(NAN_ALLOWED)} may be NaN)",
+                "order": "step(s) where it does not increase",
+            }[kind]
+            raise RunFileError(f"{path}: column {name!r} has {n} {what}")
+
+
 def read_run(path: str | os.PathLike[str]) -> tuple[pl.DataFrame, dict[str, Any]]:
     """Read a run file: its rows as a polars DataFrame and its metadata
-    (see :func:`read_run_meta`)."""
+    (see :func:`read_run_meta`). The rows are checked against the run-file contract
+    (:func:`check_run_schema`, :func:`check_run_values`), so a file written by other tools
+    cannot carry a NaN, inf or a missing channel into the dataset; raises
+    :class:`RunFileError` naming the file and the column."""
     meta = read_run_meta(path)
     try:
         df = pl.read_parquet(Path(path))
     except pl.exceptions.PolarsError as exc:
         raise _unreadable(path, exc) from exc
+    check_run_schema(path, df.schema)
+    check_run_values(path, df)
     return df, meta
 
 

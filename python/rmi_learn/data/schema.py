@@ -62,6 +62,11 @@ HISTORY = 16
 HORIZON = 64
 
 
+#: Largest seed a run may have: run files and the sweep index store seeds as Int64 (the
+#: engine's u64 seed holds every one of them).
+SEED_MAX: int = 2**63 - 1
+
+
 #: The gripper's force limit (N): commands are clipped to [0, FORCE_LIMIT_N].
 FORCE_LIMIT_N: float = float(rmi_sph.FORCE_LIMIT_N)
 

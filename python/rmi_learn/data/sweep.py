@@ -53,14 +53,15 @@ from rmi_learn.data.runs import (
     RunFileError,
     atomic_write_bytes,
     atomic_write_json,
+    json_kind,
     read_json_source,
     read_run_meta,
+    run_file_bytes,
     run_id,
     run_path,
     write_error,
-    write_run,
 )
-from rmi_learn.data.schema import FORCE_LIMIT_N, PHASES, SPONGE_SIZES_CM
+from rmi_learn.data.schema import FORCE_LIMIT_N, PHASES, SEED_MAX, SPONGE_SIZES_CM
 from rmi_learn.errors import InputError, StageFailure
 
 PRESETS: tuple[str, ...] = ("tiny", "quick", "study", "paper")
@@ -102,6 +103,8 @@ def load_grid(
 
 def validate_grid(grid: Mapping[str, Any], source: str = "grid") -> dict[str, Any]:
     """Check a grid dict (see :func:`load_grid`) and return a normalised copy."""
+    if not isinstance(grid, Mapping):
+        raise ValueError(f"{source}: a grid is a JSON object, got {json_kind(grid)}")
     unknown = set(grid) - _GRID_KEYS
     if unknown:
         raise ValueError(f"{source}: unknown keys {sorted(unknown)} (allowed {sorted(_GRID_KEYS)})")
@@ -109,15 +112,23 @@ def validate_grid(grid: Mapping[str, Any], source: str = "grid") -> dict[str, An
     missing = [k for k in need if k not in grid]
     if missing:
         raise ValueError(f"{source}: missing keys {missing}")
+    overrides = grid.get("overrides", {})
+    if not isinstance(overrides, Mapping):
+        raise ValueError(
+            f"{source}: overrides must be an object of trial config fields, "
+            f"got {json_kind(overrides)}"
+        )
     g: dict[str, Any] = {
         "name": str(grid.get("name", "custom")),
         "description": str(grid.get("description", "")),
-        "overrides": dict(grid.get("overrides", {})),
+        "overrides": dict(overrides),
     }
     for key in ("sizes_cm", "porosities", "hold_forces_N", "squeeze_forces_N", "seeds"):
         vals = grid[key]
         if not isinstance(vals, list) or not vals:
             raise ValueError(f"{source}: {key} must be a non-empty list")
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vals):
+            raise ValueError(f"{source}: {key} must be a list of numbers, got {vals!r:.80}")
         if len(set(vals)) != len(vals):
             raise ValueError(f"{source}: {key} has duplicates")
         g[key] = list(vals)
@@ -133,8 +144,8 @@ def validate_grid(grid: Mapping[str, Any], source: str = "grid") -> dict[str, An
             if not (isinstance(f, (int, float)) and 0.0 < f <= FORCE_LIMIT_N):
                 raise ValueError(f"{source}: {key} value {f!r} outside (0, {FORCE_LIMIT_N}] N")
     for s in g["seeds"]:
-        if not isinstance(s, int) or isinstance(s, bool) or s < 0:
-            raise ValueError(f"{source}: seeds must be non-negative integers, got {s!r}")
+        if not isinstance(s, int) or not 0 <= s <= SEED_MAX:
+            raise ValueError(f"{source}: seeds must be integers in [0, {SEED_MAX}], got {s!r}")
     r = grid["radius_m"]
     if not (isinstance(r, (int, float)) and 0.0 < r < 0.05):
         raise ValueError(f"{source}: radius_m {r!r} outside (0, 0.05) m")
@@ -287,26 +298,15 @@ def _status_of_exception(exc: BaseException) -> str:
     return "unstable" if "SimulationUnstableError" in names else "failed"
 
 
-def execute_run(
-    spec: RunSpec,
-    config: dict[str, Any],
-    runs_root: str,
-    runner: Any = None,
-    threads_per_run: int = 1,
-    retry_failed: bool = False,
+def compute_run(
+    spec: RunSpec, config: dict[str, Any], runner: Any = None, threads_per_run: int = 1
 ) -> dict[str, Any]:
-    """Run one grid point unless it is done, and store its run file or error record.
-    ``config`` is the trial config :func:`run_sweep` built (and the engine checked) for
-    ``spec`` before the sweep started; the runner gets it as it is.
-
-    Returns ``{"run_id", "status", "wall_s", "error"}`` with status ``ok``, ``failed``,
-    ``unstable`` or ``skipped``. Never raises for a failing runner; raises only if the
-    output directory cannot be written.
-    """
-    path = run_path(runs_root, spec.params)
-    rdir = path.parent
-    if is_done(rdir, retry_failed):
-        return {"run_id": spec.run_id, "status": "skipped", "wall_s": 0.0, "error": None}
+    """Run one grid point and return its result without writing anything: ``{"run_id",
+    "status", "wall_s", "error", "data", "record"}`` with status ``ok`` (``data``: the run
+    file's bytes, :func:`rmi_learn.data.runs.run_file_bytes`), or ``failed`` / ``unstable``
+    (``record``: the body of its ``error.json``). Never raises for a failing runner.
+    :func:`store_run` writes the result where the sweep's output lives, which for a Ray
+    worker is another machine's disk."""
     t0 = time.perf_counter()
     try:
         run = _resolve(runner, "rmi_sph:run_trial")
@@ -315,27 +315,70 @@ def execute_run(
         outcome = dict(result["outcome"])
         outcome.setdefault("wall_s", wall)  # the engine's own figure wins when given
         outcome["sweep_wall_s"] = wall  # the runner as this worker saw it
-        write_run(path, result["columns"], config, spec.params, outcome)
-    except (Exception, KeyboardInterrupt) as exc:  # noqa: BLE001 - recorded, sweep goes on
-        if isinstance(exc, KeyboardInterrupt):
-            raise
+        data = run_file_bytes(result["columns"], config, spec.params, outcome)
+    except Exception as exc:  # noqa: BLE001 - recorded, the sweep goes on
         wall = time.perf_counter() - t0
         status = "failed" if isinstance(exc, RunFileError) else _status_of_exception(exc)
         error = f"{type(exc).__name__}: {exc}"
-        write_error(
-            rdir,
-            spec.params,
-            {
-                "status": status,
-                "error": error,
-                "traceback": traceback.format_exc(),
-                "wall_s": wall,
-                "config": config,
-            },
-        )
-        return {"run_id": spec.run_id, "status": status, "wall_s": wall, "error": error}
-    (rdir / ERROR_FILE).unlink(missing_ok=True)  # a retried run that now succeeded
-    return {"run_id": spec.run_id, "status": "ok", "wall_s": wall, "error": None}
+        record = {
+            "status": status,
+            "error": error,
+            "traceback": traceback.format_exc(),
+            "wall_s": wall,
+            "config": config,
+        }
+        return {
+            "run_id": spec.run_id,
+            "status": status,
+            "wall_s": wall,
+            "error": error,
+            "data": None,
+            "record": record,
+        }
+    return {
+        "run_id": spec.run_id,
+        "status": "ok",
+        "wall_s": wall,
+        "error": None,
+        "data": data,
+        "record": None,
+    }
+
+
+def store_run(result: Mapping[str, Any], spec: RunSpec, runs_root: str | Path) -> dict[str, Any]:
+    """Write a :func:`compute_run` result under ``runs_root`` atomically (the run file, or
+    ``error.json``) and return it without the bytes: ``{"run_id", "status", "wall_s",
+    "error"}``. Raises ``OSError`` if the output directory cannot be written."""
+    path = run_path(runs_root, spec.params)
+    if result["data"] is not None:
+        data = result["data"]
+        atomic_write_bytes(path, lambda f: f.write(data))
+        (path.parent / ERROR_FILE).unlink(missing_ok=True)  # a retried run that now succeeded
+    else:
+        write_error(path.parent, spec.params, result["record"])
+    return {k: result[k] for k in ("run_id", "status", "wall_s", "error")}
+
+
+def execute_run(
+    spec: RunSpec,
+    config: dict[str, Any],
+    runs_root: str,
+    runner: Any = None,
+    threads_per_run: int = 1,
+    retry_failed: bool = False,
+) -> dict[str, Any]:
+    """Run one grid point unless it is done, and store its run file or error record
+    (:func:`compute_run`, then :func:`store_run`). ``config`` is the trial config
+    :func:`run_sweep` built (and the engine checked) for ``spec`` before the sweep started;
+    the runner gets it as it is.
+
+    Returns ``{"run_id", "status", "wall_s", "error"}`` with status ``ok``, ``failed``,
+    ``unstable`` or ``skipped``. Never raises for a failing runner; raises only if the
+    output directory cannot be written.
+    """
+    if is_done(run_path(runs_root, spec.params).parent, retry_failed):
+        return {"run_id": spec.run_id, "status": "skipped", "wall_s": 0.0, "error": None}
+    return store_run(compute_run(spec, config, runner, threads_per_run), spec, runs_root)
 
 
 # --------------------------------------------------------------------------------------
@@ -697,7 +740,10 @@ def _run_ray(
     record: Callable[[Any], None],
 ) -> None:
     """One Ray task per run (``num_cpus=threads_per_run``); ``ray.init()`` locally or on the
-    cluster of ``$RAY_ADDRESS`` unless Ray is already initialised."""
+    cluster of ``$RAY_ADDRESS`` unless Ray is already initialised. A task returns its run
+    file's bytes (:func:`compute_run`) and this process writes them (:func:`store_run`), so
+    the runs and the index land on the driver's disk whichever node ran them. A task whose
+    node is lost is retried once on another node (Ray's ``max_retries``)."""
     ray = _import_ray()
     started_here = False
     if not ray.is_initialized():
@@ -714,15 +760,18 @@ def _run_ray(
         ray.init(address=address, **kwargs)
         started_here = True
     try:
-        remote = ray.remote(num_cpus=threads_per_run, max_retries=1)(execute_run)
-        refs = {remote.remote(s, configs[s.run_id], *args): s for s in pending}
+        runs_root, runner, _, _ = args
+        remote = ray.remote(num_cpus=threads_per_run, max_retries=1)(compute_run)
+        refs = {
+            remote.remote(s, configs[s.run_id], runner, threads_per_run): s for s in pending
+        }
         waiting = list(refs)
         while waiting:
             done, waiting = ray.wait(waiting, num_returns=1)
             for ref in done:
                 spec = refs[ref]
                 try:
-                    record(ray.get(ref))
+                    result = ray.get(ref)
                 except Exception as exc:  # noqa: BLE001 - a lost worker, not a runner error
                     err = f"ray task failed: {type(exc).__name__}: {exc}"
                     write_error(
@@ -731,6 +780,8 @@ def _run_ray(
                         {"status": "failed", "error": err, "wall_s": None},
                     )
                     record({"run_id": spec.run_id, "status": "failed", "error": err})
+                else:
+                    record(store_run(result, spec, runs_root))
     finally:
         if started_here:
             ray.shutdown()

@@ -32,6 +32,18 @@ def _count(low: int) -> Any:
     return _checked(count(low))
 
 
+def _seed() -> Any:
+    from rmi_learn.cli.argtypes import seed
+
+    return _checked(seed)
+
+
+def _device() -> Any:
+    from rmi_learn.cli.argtypes import device
+
+    return _checked(device, str)
+
+
 def _real(**limits: Any) -> Any:
     from rmi_learn.cli.argtypes import real
 
@@ -121,9 +133,9 @@ class WorldModelOptions(StageOptions):
     steps_per_epoch: int | None = _count(1)
     lr: float | None = _real(low=0.0, low_open=True)
     val_windows: int | None = _count(1)
-    seed: int | None = _count(0)
+    seed: int | None = _seed()
     deterministic: bool | None = _flag()
-    device: str | None = _text()
+    device: str | None = _device()
     debug: bool | None = _flag()
 
 
@@ -134,7 +146,7 @@ class EvalOptions(StageOptions):
     split: str | None = _text()
     batch_size: int | None = _count(1)
     max_windows: int | None = _count(1)
-    device: str | None = _text()
+    device: str | None = _device()
     latency: bool | None = _flag()
 
 
@@ -149,13 +161,13 @@ class PolicyOptions(StageOptions):
     lr: float | None = _real(low=0.0, low_open=True)
     weight_decay: float | None = _real(low=0.0)
     patience: int | None = _count(1)
-    seed: int | None = _count(0)
+    seed: int | None = _seed()
     history: int | None = _count(1)
     horizon: int | None = _count(4)
     ema_decay: float | None = _real(low=0.0, high=1.0, high_open=True)
     snr_floor: float | None = _real(low=0.0)
     val_windows: int | None = _count(1)
-    device: str | None = _text()
+    device: str | None = _device()
     max_steps_per_epoch: int | None = _count(1)
     debug: bool | None = _flag()
     deterministic: bool | None = _flag()
@@ -169,10 +181,10 @@ class RankOptions(StageOptions):
     k: int | None = _count(1)
     max_windows: int | None = _count(0)
     batch_size: int | None = _count(1)
-    seed: int | None = _count(0)
+    seed: int | None = _seed()
     force_limit: float | None = _real(low=0.0, low_open=True)
     weights: str | None = _text()
-    device: str | None = _text()
+    device: str | None = _device()
 
 
 @dataclass(frozen=True)

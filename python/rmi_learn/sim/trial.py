@@ -10,8 +10,9 @@ with the same load averaging as ``rmi_sph.run_trial``, so both give identical co
 
 from __future__ import annotations
 
-import json
+import contextlib
 import os
+import shutil
 import time
 from pathlib import Path
 from typing import Any
@@ -35,6 +36,20 @@ def params_of(config: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+#: What :func:`simulate` writes into its output directory (frames go under ``frames/``).
+OUTPUTS: tuple[str, ...] = ("run.parquet", "config.json", "trial.pvd", "frames")
+
+
+def _remove_outputs(out: Path) -> None:
+    """Remove what :func:`simulate` writes into ``out`` (nothing else there)."""
+    for name in OUTPUTS:
+        path = out / name
+        if path.is_dir():
+            shutil.rmtree(path)
+        else:
+            path.unlink(missing_ok=True)
+
+
 def simulate(
     config: Any,
     out_dir: str | os.PathLike[str],
@@ -44,6 +59,7 @@ def simulate(
     binary: bool = True,
     include_boundary: bool = False,
     surface: bool = False,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
     """Run one scripted trial stepping an ``rmi_sph.Trial`` from Python.
 
@@ -52,17 +68,59 @@ def simulate(
     ``{"columns", "outcome", "config", "path"}``; columns and outcome have the layout of
     ``rmi_sph.run_trial`` (``wall_s`` includes frame writing).
 
+    An ``out_dir`` that holds a finished run (``run.parquet``) is refused with
+    :class:`~rmi_learn.errors.InputError` unless ``overwrite``, which first removes that
+    run's outputs (:data:`OUTPUTS`), so no frame of the old run mixes with the new ones.
+    When a write fails (a full disk, a read-only directory) the ``OSError`` names the path,
+    and the outputs of this call are removed, with ``out_dir`` if this call created it.
+
     Raises ``rmi_sph.StateError`` if the trial does not finish within its time limit, and
     the engine's errors (``ConfigError``, ``SimulationUnstableError``).
     """
     import rmi_sph
-    from rmi_learn.data.runs import atomic_write_json, write_run
-    from rmi_learn.sim.vtk import FrameWriter
 
     out = Path(out_dir)
     t0 = time.perf_counter()
     # The config is validated before anything is written: a rejected one leaves no directory.
     sim = rmi_sph.Trial(config, num_threads=num_threads, record=True)
+    if (out / "run.parquet").exists() and not overwrite:
+        raise InputError(
+            f"{out} holds a finished run ({out / 'run.parquet'}); "
+            "give --overwrite to replace it, or another --out"
+        )
+    created = not out.exists()
+    if overwrite:
+        _remove_outputs(out)
+    try:
+        return _simulate_into(
+            sim, out, t0, vtk_every, binary=binary, include_boundary=include_boundary,
+            surface=surface,
+        )
+    except OSError:
+        # Best effort: the error that stopped the writes may stop the clean-up too, and a
+        # directory the user filled is not removed (rmdir refuses it).
+        with contextlib.suppress(OSError):
+            _remove_outputs(out)
+            if created:
+                out.rmdir()
+        raise
+
+
+def _simulate_into(
+    sim: Any,
+    out: Path,
+    t0: float,
+    vtk_every: int,
+    *,
+    binary: bool,
+    include_boundary: bool,
+    surface: bool,
+) -> dict[str, Any]:
+    """Step ``sim`` to its end writing into ``out`` (see :func:`simulate`)."""
+    import rmi_sph
+    from rmi_learn.data.runs import atomic_write_json, write_run
+    from rmi_learn.sim.vtk import FrameWriter
+
     out.mkdir(parents=True, exist_ok=True)
     cfg = sim.config
     atomic_write_json(out / "config.json", cfg)
@@ -88,10 +146,16 @@ def simulate(
     return {"columns": columns, "outcome": outcome, "config": cfg, "path": path}
 
 
-def read_config(path: str | os.PathLike[str]) -> Any:
-    """A trial config from a JSON file, as given (``simulate`` checks it). Raises
-    :class:`~rmi_learn.errors.InputError` when the file is not JSON."""
+def read_config(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """A trial config from a JSON file: a JSON object, as given (``simulate`` checks its
+    fields). Raises :class:`~rmi_learn.errors.InputError` when the file is not UTF-8 JSON,
+    nests deeper than the parser allows, or holds anything but an object."""
+    from rmi_learn.data.runs import json_kind, read_json_source
+
     try:
-        return json.loads(Path(path).read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: not valid JSON: {exc}") from exc
+        config, _ = read_json_source(__package__, (), None, path, "trial config")
+    except ValueError as exc:
+        raise InputError(exc) from exc
+    if not isinstance(config, dict):
+        raise InputError(f"{path}: a trial config is a JSON object, got {json_kind(config)}")
+    return config

@@ -50,10 +50,15 @@ def load(out_dir: str | Path, which: str = "model") -> tuple[WorldModel, dict[st
     it was trained on: z_mean, z_std (18, SI units), u_mean, u_std (2,)). Inputs to the model
     are standardised exactly like ``rmi_learn.data.dataset`` windows.
     """
-    from rmi_learn.trainer import load_weights, read_config
+    from rmi_learn.errors import InputError
+    from rmi_learn.trainer import CONFIG_FILE, load_weights, read_config
 
     config = read_config(out_dir)
-    model = build(config["model"])
+    try:
+        model = build(config["model"])
+    except (KeyError, TypeError, ValueError) as exc:
+        # The architecture comes from a file: a field the constructor refuses is bad input.
+        raise InputError(f"{Path(out_dir) / CONFIG_FILE}: cannot build its model: {exc}") from exc
     load_weights(model, out_dir, which)
     model.eval()
     return model, config

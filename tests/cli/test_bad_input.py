@@ -1,0 +1,291 @@
+"""Adversarial input to the `rmi` commands: every case ends with status 2 and one line on
+stderr naming the field or path (and the accepted range), and leaves nothing half-written."""
+
+from __future__ import annotations
+
+import errno
+import json
+import shutil
+from pathlib import Path
+
+import polars as pl
+import pytest
+
+from rmi_learn.cli import main
+from tiny_trial import tiny_config
+
+
+def tiny_config_file(directory: Path, **changes: object) -> list[str]:
+    """``--config FILE`` of the tests' tiny trial (about 1 s), with ``changes``."""
+    path = directory / "trial.json"
+    path.write_text(json.dumps({**tiny_config(), **changes}))
+    return ["--config", str(path)]
+
+
+def one_line(capsys: pytest.CaptureFixture[str], command: str) -> str:
+    """The single stderr line of a command that ended with status 2."""
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"rmi {command}: "), lines
+    return lines[0]
+
+
+def usage_error(capsys: pytest.CaptureFixture[str], argv: list[str]) -> str:
+    """argparse's error line of a rejected option (status 2)."""
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    return capsys.readouterr().err.splitlines()[-1]
+
+
+@pytest.mark.parametrize(
+    ("content", "says"),
+    [
+        (b"[]", "JSON object, got array"),
+        (b"3", "JSON object, got number"),
+        (b"null", "JSON object, got null"),
+        (b"\xff\xfe{", "not UTF-8 text"),
+        (b"[" * 100_000, "nested too deeply"),
+    ],
+    ids=["list", "number", "null", "not-utf8", "deep"],
+)
+def test_simulate_refuses_a_config_file_that_is_not_an_object(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], content: bytes, says: str
+) -> None:
+    config = tmp_path / "config.json"
+    config.write_bytes(content)
+    out = tmp_path / "out"
+    assert main(["simulate", "--config", str(config), "--out", str(out)]) == 2
+    line = one_line(capsys, "simulate")
+    assert str(config) in line and says in line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["simulate", "--out", "o", "--seed", str(2**70)],
+        ["simulate", "--out", "o", "--threads", str(2**40)],
+        ["train-wm", "--model", "arx", "--data", "d", "--out", "o", "--seed", str(2**64)],
+        ["sweep", "--preset", "tiny", "--out", "o", "--workers", str(2**33)],
+    ],
+    ids=["seed", "threads", "torch-seed", "workers"],
+)
+def test_integer_options_beyond_their_range_are_usage_errors(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    argv: list[str],
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    option = next(a for a in argv if a.startswith("--") and argv[argv.index(a) + 1].isdigit())
+    line = usage_error(capsys, argv)
+    assert f"argument {option}: expected an integer in [" in line
+    assert not (tmp_path / "o").exists()
+
+
+def test_device_cuda_without_a_gpu_is_one_usage_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)  # also on a GPU machine
+    argv = ["train-wm", "--model", "arx", "--data", "d", "--out", str(tmp_path / "o")]
+    line = usage_error(capsys, [*argv, "--device", "cuda"])
+    assert "argument --device: cuda: CUDA is not available" in line
+
+
+def grid_file(tmp_path: Path, **changes: object) -> Path:
+    g: dict[str, object] = {
+        "sizes_cm": [8],
+        "porosities": [0.8],
+        "hold_forces_N": [20],
+        "squeeze_forces_N": [150],
+        "seeds": [0],
+        "radius_m": 0.01,
+    }
+    path = tmp_path / "grid.json"
+    path.write_text(json.dumps(5 if changes.get("whole") else {**g, **changes}))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("changes", "says"),
+    [
+        ({"whole": True}, "a grid is a JSON object, got number"),
+        ({"overrides": 5}, "overrides must be an object"),
+        ({"overrides": {"bogus": 1}}, "`bogus`"),
+        ({"seeds": [2**70]}, f"seeds must be integers in [0, {2**63 - 1}]"),
+        ({"porosities": [[0.5]]}, "porosities must be a list of numbers"),
+    ],
+    ids=["number", "overrides-number", "overrides-unknown", "huge-seed", "nested-list"],
+)
+def test_sweep_refuses_a_bad_grid_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], changes: dict[str, object], says: str
+) -> None:
+    out = tmp_path / "sweep"
+    path = grid_file(tmp_path, **changes)
+    assert main(["sweep", "--grid", str(path), "--out", str(out), "--no-progress"]) == 2
+    assert says in one_line(capsys, "sweep")
+    assert not out.exists()
+
+
+def test_sweep_index_only_refuses_a_missing_directory(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "nope"
+    assert main(["sweep", "--index-only", "--out", str(out)]) == 2
+    assert str(out) in one_line(capsys, "sweep")
+    assert not out.exists()
+
+
+def drop_column(path: Path, column: str) -> None:
+    """Rewrite a run file without ``column``, keeping its metadata."""
+    meta = pl.read_parquet_metadata(path)
+    pl.read_parquet(path).drop(column).write_parquet(path, metadata=meta)
+
+
+@pytest.mark.parametrize("command", ["dataset", "analyze"])
+def test_a_run_file_missing_a_column_is_named(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], synthetic_runs_dir: Path, command: str
+) -> None:
+    runs = tmp_path / "runs"
+    shutil.copytree(synthetic_runs_dir, runs)
+    bad = sorted(runs.rglob("run.parquet"))[0]
+    drop_column(bad, "F_meas")
+    out = tmp_path / "out"
+    argv = ["--runs", str(runs), "--out", str(out)]
+    assert main([command, *argv, *(["--bootstrap", "10"] if command == "analyze" else [])]) == 2
+    line = one_line(capsys, command)
+    assert str(bad) in line and "F_meas" in line
+    assert not out.exists()
+
+
+def truncate(path: Path) -> None:
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+
+
+def test_train_wm_names_a_truncated_frames_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], synthetic_dataset_dir: Path
+) -> None:
+    data = tmp_path / "ds"
+    shutil.copytree(synthetic_dataset_dir, data)
+    truncate(data / "frames.parquet")
+    out = tmp_path / "run"
+    assert main(["train-wm", "--model", "arx", "--data", str(data), "--out", str(out)]) == 2
+    line = one_line(capsys, "train-wm")
+    assert str(data / "frames.parquet") in line and "damaged dataset file" in line
+    assert not out.exists()
+
+
+@pytest.fixture(scope="module")
+def trained_run(tmp_path_factory: pytest.TempPathFactory, synthetic_dataset_dir: Path) -> Path:
+    """A world-model run of one short epoch (the ARX model: the fastest to train)."""
+    out = tmp_path_factory.mktemp("wm") / "arx"
+    argv = ["train-wm", "--model", "arx", "--data", str(synthetic_dataset_dir), "--out"]
+    assert main([*argv, str(out), "--epochs", "1", "--steps-per-epoch", "2", "--no-progress"]) == 0
+    return out
+
+
+@pytest.mark.parametrize(
+    ("damage", "file", "says"),
+    [
+        ("truncate", "model.safetensors", "damaged weights file"),
+        ("[]", "config.json", "JSON object whose 'model' is an object, got array"),
+        ('{"model": {"kind": "arx", "bogus": 1}}', "config.json", "cannot build its model"),
+    ],
+    ids=["truncated-weights", "config-list", "config-unknown-argument"],
+)
+def test_eval_wm_names_a_damaged_run(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    synthetic_dataset_dir: Path,
+    trained_run: Path,
+    damage: str,
+    file: str,
+    says: str,
+) -> None:
+    run = tmp_path / "run"
+    shutil.copytree(trained_run, run)
+    if damage == "truncate":
+        truncate(run / file)
+    else:
+        (run / file).write_text(damage)
+    out = tmp_path / "tables"
+    argv = ["eval-wm", "--runs", str(run), "--data", str(synthetic_dataset_dir), "--out"]
+    capsys.readouterr()
+    assert main([*argv, str(out), "--split", "train", "--no-latency"]) == 2
+    line = one_line(capsys, "eval-wm")
+    assert str(run / file) in line and says in line
+    assert not out.exists()
+
+
+def test_simulate_refuses_a_finished_out_unless_overwrite(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "one"
+    assert main(["simulate", *tiny_config_file(tmp_path), "--out", str(out)]) == 0
+    before = (out / "run.parquet").read_bytes()
+    capsys.readouterr()
+    other = tiny_config_file(tmp_path, hold_force=30.0)
+    assert main(["simulate", *other, "--out", str(out)]) == 2
+    assert "--overwrite" in one_line(capsys, "simulate")
+    assert (out / "run.parquet").read_bytes() == before
+    assert main(["simulate", *other, "--out", str(out), "--overwrite"]) == 0
+    assert json.loads((out / "config.json").read_text())["hold_force"] == 30.0
+
+
+@pytest.mark.parametrize("code", [errno.ENOSPC, errno.EROFS])
+def test_simulate_that_cannot_write_names_the_path_and_leaves_nothing(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    code: int,
+) -> None:
+    """A full disk (or a read-only directory: the tests may run as root, for whom no
+    directory is read-only) fails the run file's write; no output of the run is left."""
+    import rmi_learn.data.runs as runs
+
+    def refuse(f: object) -> None:
+        raise OSError(code, "refused by the test")
+
+    real = runs.atomic_write_bytes
+    monkeypatch.setattr(
+        runs,
+        "atomic_write_bytes",
+        lambda path, writer: real(path, refuse if Path(path).name == "run.parquet" else writer),
+    )
+    out = tmp_path / "one"
+    argv = ["simulate", *tiny_config_file(tmp_path), "--out", str(out), "--vtk-every", "50"]
+    assert main(argv) == 2
+    line = one_line(capsys, "simulate")
+    assert str(out / "run.parquet") in line and "refused by the test" in line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("command", ["sweep", "analyze"])
+def test_an_output_directory_that_cannot_be_written_is_named(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    synthetic_runs_dir: Path,
+    command: str,
+) -> None:
+    """A read-only --out (simulated: the tests may run as root) is one line naming it."""
+    out = tmp_path / "ro"
+    real_mkdir = Path.mkdir
+
+    def mkdir(self: Path, *args: object, **kwargs: object) -> None:
+        if self == out:
+            raise PermissionError(errno.EACCES, "Permission denied", str(self))
+        real_mkdir(self, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(Path, "mkdir", mkdir)
+    argv = {
+        "sweep": ["sweep", "--preset", "tiny", "--no-progress", "--out", str(out)],
+        "analyze": ["analyze", "--runs", str(synthetic_runs_dir), "--bootstrap", "10"],
+    }[command]
+    if command == "analyze":
+        argv += ["--out", str(out)]
+    assert main(argv) == 2
+    assert str(out) in one_line(capsys, command)
+    assert not out.exists()
