@@ -609,7 +609,7 @@ def _section_validation(doc: Doc, out: Path, validation: Path | None) -> None:
             "*No validation records here. Run `make validation` (it runs "
             "`cargo test --release -p rmi-sph --test validation` with "
             "`RMI_VALIDATION_OUT=OUT/validation`) and re-run `rmi report`. The figures "
-            "recorded for the release are in the README.*"
+            "recorded for the release are in docs/engine.md (Validation).*"
         )
         return
     rows = []
