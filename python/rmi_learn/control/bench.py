@@ -527,6 +527,29 @@ class Bench:
         return e, plans
 
 
+def simulator_scorer(sim: Any, state: bytes, substeps: int, std: Any) -> Any:
+    """A :data:`~rmi_learn.policies.ranking.Scorer` that executes every chunk in the engine
+    from ``state`` (force setpoints, as the benchmark does) and returns the executed M_L as
+    the forecast (other channels and the class probabilities zero): the oracle scorer, with
+    which ranking on the water term alone is best-of-K."""
+    import torch
+
+    def score(hist: Any, hist_mask: Any, actions: Any) -> tuple[Any, Any, Any]:
+        u = std.u_to_phys(actions)
+        n, h, _ = u.shape
+        z = torch.zeros(n, h, 18)
+        for i in range(n):
+            e = execute_forces(sim, state, u[i, :, 0].double().numpy(), substeps, True)
+            if e.status != "ok":
+                z[i] = float("nan")
+                continue
+            m = torch.as_tensor([r["M_L"] for r in e.records], dtype=torch.float32)
+            z[i, :, 0] = (m - std.z_mean[0]) / std.z_std[0]
+        return z, torch.zeros(n, h), torch.zeros(n, h, 4)
+
+    return score
+
+
 # --------------------------------------------------------------------------------------
 # Checkpoint
 
