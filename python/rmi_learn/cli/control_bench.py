@@ -54,35 +54,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="directory holding diffusion/ and/or flow/ `rmi train-policy` runs",
     )
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory")
-    parser.add_argument(
-        "--states-per-size",
-        type=count(1),
-        default=4,
-        metavar="N",
-        help="distinct start states per sponge size (default 4; a larger N extends a run)",
+    # (option, lowest value, default, help) of the integer options.
+    counts = (
+        ("--states-per-size", 1, 4, "distinct start states per size (a larger N extends a run)"),
+        ("--goals-per-state", 0, 2, "goals drawn inside the reachable interval per state"),
+        ("--setpoints", 2, 5, "constant setpoints from 0.8 F_hold to the force limit"),
+        ("--k", 1, 8, "policy samples"),
+        ("--receding", 0, 8, "re-plan every N control steps (0: no receding controller)"),
     )
-    parser.add_argument(
-        "--goals-per-state",
-        type=count(0),
-        default=2,
-        metavar="N",
-        help="goals drawn inside the reachable interval per state (default 2)",
-    )
-    parser.add_argument(
-        "--setpoints",
-        type=count(2),
-        default=5,
-        metavar="N",
-        help="constant setpoints from 0.8 F_hold to the force limit (default 5)",
-    )
-    parser.add_argument("--k", type=count(1), default=8, help="policy samples (default 8)")
-    parser.add_argument(
-        "--receding",
-        type=count(0),
-        default=8,
-        metavar="N",
-        help="re-plan every N control steps (0: no receding-horizon controller; default 8)",
-    )
+    for flag, low, default, text in counts:
+        parser.add_argument(
+            flag, type=count(low), default=default, metavar="N", help=f"{text} (default {default})"
+        )
     parser.add_argument(
         "--scorers",
         type=_names,

@@ -120,14 +120,6 @@ class Candidate:
     phase: str
 
 
-def _sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with path.open("rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def load_policies(policy_dir: Path, ds: Any) -> dict[str, PolicyInput]:
     """The trained policies under ``policy_dir`` (``diffusion/`` and/or ``flow/``, or one
     policy run directory itself), checked against the dataset's statistics."""
@@ -375,7 +367,11 @@ class Bench:
         reached = [e.M_L for _, e in sweep if e.status == "ok" and e.M_L is not None]
         lo, hi = (min(reached), max(reached)) if reached else (None, None)
         rng = np.random.default_rng(_seed(self.seed, c.run_id, c.t, "goals"))
-        drawn = rng.uniform(lo, hi, self.goals_per_state) if reached else np.zeros(0)
+        drawn = (
+            rng.uniform(lo, hi, self.goals_per_state)
+            if lo is not None and hi is not None
+            else np.zeros(0)
+        )
         goals: list[tuple[str, int, float]] = [("drawn", i, float(g)) for i, g in enumerate(drawn)]
         goals.append(("logged", 0, float(tr.water[c.t + h])))
         goals += [("given", i, float(g)) for i, g in enumerate(self.given_goals)]
@@ -554,38 +550,42 @@ def simulator_scorer(sim: Any, state: bytes, substeps: int, std: Any) -> Any:
 # Checkpoint
 
 
-def _rows_frame(rows: Sequence[Mapping[str, Any]]) -> pl.DataFrame:
-    return pl.DataFrame(
-        {c: pl.Series(c, [r.get(c) for r in rows], dtype=d) for c, d in ROW_SCHEMA.items()}
-    )
+@dataclass
+class Checkpoint:
+    """``control_windows.parquet``: the rows so far, tied to the inputs and options by a
+    fingerprint in the file's metadata, rewritten atomically after every start state."""
 
+    path: Path
+    fingerprint: str
 
-def _read_checkpoint(path: Path, fingerprint: str) -> list[dict[str, Any]]:
-    if not path.exists():
-        return []
-    try:
-        meta = pl.read_parquet_metadata(path)
-        df = pl.read_parquet(path)
-    except Exception as exc:  # noqa: BLE001 - any unreadable file gets the same advice
-        raise ControlBenchError(f"{path} is not readable ({exc}); delete it to start over") from exc
-    if meta.get("rmi.control.fingerprint") != fingerprint:
-        raise ControlBenchError(
-            f"{path} holds results of other inputs or options; use another --out or delete "
-            "that file to start over"
-        )
-    if set(df.columns) != set(ROW_SCHEMA):
-        raise ControlBenchError(f"{path} has other columns than this version writes; delete it")
-    return df.to_dicts()
+    def load(self) -> list[dict[str, Any]]:
+        """The stored rows (none when the file does not exist); refuses a file of other
+        inputs, options or columns with advice, since resuming it would mix results."""
+        if not self.path.exists():
+            return []
+        advice = "use another --out or delete that file to start over"
+        try:
+            stored = pl.read_parquet_metadata(self.path).get("rmi.control.fingerprint")
+            frame = pl.read_parquet(self.path)
+        except Exception as exc:  # noqa: BLE001 - any unreadable file gets the same advice
+            raise ControlBenchError(f"{self.path} is not readable ({exc}); {advice}") from exc
+        if stored != self.fingerprint:
+            raise ControlBenchError(f"{self.path} holds results of other inputs; {advice}")
+        if frame.columns != list(ROW_SCHEMA):
+            raise ControlBenchError(f"{self.path} has other columns than this version; {advice}")
+        return frame.to_dicts()
+
+    def save(self, rows: Sequence[Mapping[str, Any]]) -> None:
+        """Write every row (columns of :data:`ROW_SCHEMA`) atomically."""
+        columns = [pl.Series(c, [r.get(c) for r in rows], dtype=d) for c, d in ROW_SCHEMA.items()]
+        frame = pl.DataFrame(columns)
+        meta = {"rmi.control.fingerprint": self.fingerprint, "rmi.version": __version__}
+        atomic_write_bytes(self.path, lambda f: frame.write_parquet(f, metadata=meta))
 
 
 def _full(row: Mapping[str, Any]) -> dict[str, Any]:
     """A row with every column of :data:`ROW_SCHEMA` (None where it does not apply)."""
     return {c: row.get(c) for c in ROW_SCHEMA}
-
-
-def _write_checkpoint(path: Path, rows: Sequence[Mapping[str, Any]], meta: dict[str, str]) -> None:
-    df = _rows_frame(rows)
-    atomic_write_bytes(path, lambda f: df.write_parquet(f, metadata=meta))
 
 
 # --------------------------------------------------------------------------------------
@@ -630,6 +630,7 @@ def run_control_bench(
     from rmi_learn.data.dataset import load_dataset
     from rmi_learn.policies.closed_loop import (
         Window,
+        _sha256,
         check_anchor,
         control_substeps,
         load_index,
@@ -727,13 +728,12 @@ def run_control_bench(
         d for pol in sorted(pols) for d in (pol_p / pol / "model.ema.safetensors",)
     ] + [sc.path / "model.safetensors" for sc in scs.values()]:
         if p.exists():
-            digest.update(f"{p.name}={_sha256_file(p)}".encode())
+            digest.update(f"{p.name}={_sha256(p)}".encode())
     fingerprint = digest.hexdigest()
 
     out_p.mkdir(parents=True, exist_ok=True)
-    ckpt = out_p / WINDOWS_FILE
-    meta = {"rmi.control.fingerprint": fingerprint, "rmi.version": __version__}
-    rows = _read_checkpoint(ckpt, fingerprint)
+    ckpt = Checkpoint(out_p / WINDOWS_FILE, fingerprint)
+    rows = ckpt.load()
     done = {(r["run_id"], r["t"]) for r in rows}
     seen = {
         r["state_hash"]: (r["run_id"], r["t"]) for r in rows if r["status"] not in STATE_STATUSES
@@ -791,7 +791,7 @@ def run_control_bench(
                                 "status": "replay_failed", "error": f"{type(exc).__name__}: {exc}",
                             }))
                             done.add((rid, c.t))
-                            _write_checkpoint(ckpt, rows, meta)
+                            ckpt.save(rows)
                             continue
                         check_anchor(sim, tr, Window(rid, size, c.t, ()))
                         state = sim.get_state()
@@ -817,7 +817,7 @@ def run_control_bench(
                             n_new += 1
                             bar.update(1)
                         done.add((rid, c.t))
-                        _write_checkpoint(ckpt, rows, meta)
+                        ckpt.save(rows)
                         bar.set_postfix_str(f"{size} cm {rid} t={c.t}", refresh=False)
     finally:
         bar.close()

@@ -42,7 +42,7 @@ def spearman(a: np.ndarray, b: np.ndarray) -> float | None:
 
 
 def bootstrap_ci(
-    x: Sequence[float], stat: str, rng: np.random.Generator, n: int = BOOTSTRAP
+    x: Sequence[float] | np.ndarray, stat: str, rng: np.random.Generator, n: int = BOOTSTRAP
 ) -> tuple[float | None, float | None]:
     """Percentile 95 % interval of the ``stat`` (``median`` or ``mean``) of ``x``."""
     v = np.asarray(x, dtype=np.float64)
