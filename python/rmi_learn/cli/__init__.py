@@ -15,6 +15,7 @@ from types import ModuleType
 from rmi_learn.cli import (
     analyze,
     closed_loop,
+    control_bench,
     dataset,
     eval_wm,
     pipeline,
@@ -37,6 +38,7 @@ COMMANDS: dict[str, tuple[ModuleType, str]] = {
     "train-policy": (train_policy, "train a goal-conditioned UNet policy"),
     "rank": (rank, "rank policy samples with the world model, write Tables III, V, S1"),
     "closed-loop": (closed_loop, "execute ranked actions in the simulator"),
+    "control-bench": (control_bench, "goal-reaching benchmark of the controllers, executed"),
     "pipeline": (pipeline, "run every stage from sweep to report"),
     "report": (report, "write report.md and report.html"),
 }

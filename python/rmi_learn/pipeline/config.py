@@ -196,6 +196,21 @@ class ClosedLoopOptions(StageOptions):
 
 
 @dataclass(frozen=True)
+class ControlOptions(StageOptions):
+    """``rmi control-bench`` (:func:`rmi_learn.control.run_control_bench`); the stage runs
+    only when a preset has a ``control`` key."""
+
+    states_per_size: int | None = _count(1)
+    goals_per_state: int | None = _count(0)
+    setpoints: int | None = _count(2)
+    k: int | None = _count(1)
+    receding: int | None = _count(0)
+    scorers: str | None = _text()
+    split: str | None = _text()
+    seed: int | None = _count(0)
+
+
+@dataclass(frozen=True)
 class PipelineConfig:
     """A pipeline preset: the run grid (a grid preset name or a grid file) and the options of
     every stage. ``raw`` is the JSON it was read from; an output directory is tied to it."""
@@ -210,6 +225,8 @@ class PipelineConfig:
     policies: PolicyOptions = field(default_factory=PolicyOptions)
     rank: RankOptions = field(default_factory=RankOptions)
     closed_loop: ClosedLoopOptions = field(default_factory=ClosedLoopOptions)
+    #: The goal-reaching benchmark's options; None: the preset does not run it.
+    control: ControlOptions | None = None
     raw: dict[str, Any] = field(default_factory=dict, compare=False)
 
 
@@ -222,7 +239,7 @@ _STAGE_KEYS: dict[str, type[StageOptions]] = {
     "rank": RankOptions,
     "closed_loop": ClosedLoopOptions,
 }
-_KEYS = {"name", "description", "grid", "ablations", *_STAGE_KEYS}
+_KEYS = {"name", "description", "grid", "ablations", "control", *_STAGE_KEYS}
 
 
 def load_preset(
@@ -244,6 +261,10 @@ def load_preset(
         if not isinstance(options, dict):
             raise ValueError(f"{source}: {key} must be an object of command options")
         stages[key] = kind.from_json(options, f"{source}: {key}")
+    if "control" in cfg:
+        if not isinstance(cfg["control"], dict):
+            raise ValueError(f"{source}: control must be an object of command options")
+        stages["control"] = ControlOptions.from_json(cfg["control"], f"{source}: control")
     return PipelineConfig(
         grid=str(cfg["grid"]),
         name=cfg.get("name"),

@@ -20,6 +20,7 @@ seconds. Output layout under ``OUT``::
     policy/<obj>/ diffusion and flow-matching UNets            (rmi train-policy)
     tables/rank/  Tables III, V, S1 and the ranked chunks      (rmi rank)
     closed_loop/  real terminal water error in the simulator   (rmi closed-loop)
+    control/      goal-reaching benchmark, when the preset has "control" (rmi control-bench)
     report/       report.md, report.html, figures              (rmi report)
 """
 
@@ -247,6 +248,33 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
 
         return [Call(argv, run)]
 
+    def control() -> list[Call]:
+        from rmi_learn.control import run_control_bench
+
+        opts = cfg.control.given() if cfg.control is not None else {}
+        dirs = {"runs": sweep_dir, "data": data, "wm": out / "wm", "policy": out / "policy"}
+        argv = (
+            ["control-bench", *(a for n, d in dirs.items() for a in (f"--{n}", str(d)))]
+            + ["--out", str(out / "control")]
+            + _flags(opts)
+            + t
+            + ["--no-progress"]
+        )
+        if "scorers" in opts:
+            opts["scorers"] = [n.strip() for n in opts["scorers"].split(",") if n.strip()]
+
+        def run() -> object:
+            return run_control_bench(
+                **dirs,  # type: ignore[arg-type]
+                out=out / "control",
+                threads=threads,
+                progress=False,
+                log=lambda msg: print(msg, file=sys.stderr),
+                **opts,
+            )
+
+        return [Call(argv, run, torch=True)]
+
     sweep_opts = cfg.sweep.given()
     stages = [
         Stage(
@@ -294,6 +322,9 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
             lambda: [Call(["report", "--out", str(out)], lambda: reporting.write_report(out))],
         ),
     ]
+    if cfg.control is not None:
+        control_stage = Stage("control", "goal-reaching benchmark in the simulator", control)
+        stages.insert(len(stages) - 1, control_stage)  # before the report
     return stages
 
 

@@ -1,0 +1,136 @@
+"""``rmi control-bench``: the goal-reaching benchmark executed in the simulator (see
+:mod:`rmi_learn.control`).
+
+``rmi control-bench --runs SWEEP_DIR --data DATASET --wm WM_DIR --policy POLICY_DIR --out DIR
+[--states-per-size 4] [--goals-per-state 2] [--setpoints 5] [--k 8] [--receding 8]
+[--scorers wt,ac-gru] [--goal-kg G ...] [--split test] [--seed 0] [--threads 1]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from rmi_learn.cli.argtypes import count
+
+
+def _names(text: str) -> list[str]:
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError(f"expected comma-separated model names, got {text!r}")
+    return names
+
+
+def _goal(text: str) -> float:
+    # Range and NaN are checked by the library against the water present (one-line error).
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a mass in kg, got {text!r}") from None
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``rmi control-bench``."""
+    parser.add_argument(
+        "--runs", required=True, type=Path, metavar="SWEEP_DIR", help="sweep output (index.parquet)"
+    )
+    parser.add_argument(
+        "--data", required=True, type=Path, metavar="DATASET", help="dataset built from SWEEP_DIR"
+    )
+    parser.add_argument(
+        "--wm",
+        required=True,
+        type=Path,
+        metavar="WM_DIR",
+        help="directory of `rmi train-wm` runs (or one run): the ranking scorers",
+    )
+    parser.add_argument(
+        "--policy",
+        required=True,
+        type=Path,
+        metavar="POLICY_DIR",
+        help="directory holding diffusion/ and/or flow/ `rmi train-policy` runs",
+    )
+    parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory")
+    # (option, lowest value, default, help) of the integer options.
+    counts = (
+        ("--states-per-size", 1, 4, "distinct start states per size (a larger N extends a run)"),
+        ("--goals-per-state", 0, 2, "goals drawn inside the reachable interval per state"),
+        ("--setpoints", 2, 5, "constant setpoints from 0.8 F_hold to the force limit"),
+        ("--k", 1, 8, "policy samples"),
+        ("--receding", 0, 8, "re-plan every N control steps (0: no receding controller)"),
+    )
+    for flag, low, default, text in counts:
+        parser.add_argument(
+            flag, type=count(low), default=default, metavar="N", help=f"{text} (default {default})"
+        )
+    parser.add_argument(
+        "--scorers",
+        type=_names,
+        default=None,
+        metavar="A,B",
+        help="world models that rank (names under WM_DIR, wt = transformer; default every one "
+        "that can rank chunks; the first is the receding controller's)",
+    )
+    parser.add_argument(
+        "--goal-kg",
+        type=_goal,
+        action="append",
+        default=[],
+        metavar="G",
+        help="an extra goal (kg) for every start state (repeatable)",
+    )
+    parser.add_argument(
+        "--split",
+        choices=("test", "val"),
+        default="test",
+        help="held-out runs the start states come from (default test; val when test is empty)",
+    )
+    parser.add_argument("--seed", type=count(0), default=0, help="draws and sampling (default 0)")
+    parser.add_argument(
+        "--threads", type=count(1), default=1, metavar="K", help="engine threads (default 1)"
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the benchmark and write its tables; 0 on success, 2 for unusable inputs."""
+    import torch
+
+    from rmi_learn.control import run_control_bench
+
+    torch.set_num_threads(args.threads)
+    summary = run_control_bench(
+        args.runs,
+        args.data,
+        args.wm,
+        args.policy,
+        args.out,
+        states_per_size=args.states_per_size,
+        goals_per_state=args.goals_per_state,
+        setpoints=args.setpoints,
+        k=args.k,
+        receding=args.receding,
+        scorers=args.scorers,
+        goal_kg=args.goal_kg,
+        split=args.split,
+        seed=args.seed,
+        threads=args.threads,
+        progress=not args.no_progress,
+        log=lambda msg: print(msg, file=sys.stderr),
+    )
+    brief = {
+        "out": str(args.out),
+        "states": summary["states"],
+        "median_error_g": {
+            kind: {
+                size: {c: e["median"] for c, e in s["controllers"].items()}
+                for size, s in sizes.items()
+            }
+            for kind, sizes in summary["summary"].items()
+        },
+    }
+    print(json.dumps(brief, indent=2))
+    return 0
