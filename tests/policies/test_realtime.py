@@ -39,6 +39,10 @@ STD = Standardiser(
     u_std=torch.tensor([100.0, 0.01]),
 )
 OBJECTIVES = {"diffusion": DiffusionObjective, "flow": FlowObjective}
+#: Agreement of the fast and reference samplers in standardised action units. DDIM's last
+#: steps divide by sqrt(1 - abar_t) (0.006 at t = 0), which scales float32 rounding of the
+#: network output (1e-7) up to about 2e-5; Euler steps do not amplify it.
+TOL = {"diffusion": 1e-4, "flow": 1e-5}
 
 
 def _net(seed: int = 0, config: UNetConfig = TINY) -> PolicyUNet:
@@ -48,7 +52,8 @@ def _net(seed: int = 0, config: UNetConfig = TINY) -> PolicyUNet:
 
 def _inputs(b: int) -> tuple[Tensor, Tensor, Tensor]:
     g = torch.Generator().manual_seed(3)
-    return torch.randn(b, 16, 23, generator=g), torch.ones(b, 16, 23), torch.randn(b, 2, generator=g)
+    hist = torch.randn(b, 16, 23, generator=g)
+    return hist, torch.ones(b, 16, 23), torch.randn(b, 2, generator=g)
 
 
 def test_mish_matches_torch() -> None:
@@ -69,7 +74,7 @@ def test_fast_sampler_equals_the_reference_sampler(name: str, steps: int | None)
         ref = ref_obj.sample_from_condition(net, cond.repeat_interleave(k, 0), noise)
     fast = FastSampler(net, OBJECTIVES[name](), steps).sample_from_condition(cond, noise)
     assert FastSampler(net, OBJECTIVES[name](), steps).schedule.steps == ref_obj.n_sample_steps
-    assert torch.allclose(fast, ref, rtol=1e-5, atol=1e-5), (fast - ref).abs().max()
+    assert torch.allclose(fast, ref, rtol=0.0, atol=TOL[name]), (fast - ref).abs().max()
 
 
 def test_schedule_of_the_final_ddim_step_returns_the_prediction() -> None:
@@ -104,7 +109,9 @@ def test_realtime_planner_selects_what_the_planner_selects(name: str, scorer: st
     original = torch.randn(3, 32, 2)
     a = ref.plan(hist, mask, goal, water, original, torch.Generator().manual_seed(7))
     b = fast.plan(hist, mask, goal, water, original, torch.Generator().manual_seed(7))
-    assert torch.allclose(a.samples, b.samples, rtol=1e-5, atol=1e-4)
+    # Compared in standardised units, where TOL is stated.
+    assert torch.allclose(STD.u_to_std(a.samples), STD.u_to_std(b.samples), rtol=0.0,
+                          atol=TOL[name])  # fmt: skip
     assert torch.allclose(a.costs["J"], b.costs["J"], rtol=1e-4, atol=1e-4)
     assert torch.equal(a.index, b.index)
     assert torch.allclose(a.original_costs["J"], b.original_costs["J"])
@@ -136,8 +143,8 @@ def _policy_run(path: Path, name: str, config: UNetConfig = TINY, seed: int = 0)
 def _stats(dataset: Path) -> dict[str, list[float]]:
     from rmi_learn.data.dataset import load_dataset
 
-    return {k: v.tolist() for k, v in load_dataset(dataset).stats.to_json().items()
-            if k in ("z_mean", "z_std", "u_mean", "u_std")}  # fmt: skip
+    stats = load_dataset(dataset).stats.to_json()
+    return {k: stats[k] for k in ("z_mean", "z_std", "u_mean", "u_std")}
 
 
 def _wm_run(path: Path, spec: dict[str, Any], stats: dict[str, Any] | None) -> Path:
@@ -187,7 +194,8 @@ def test_distill_cli_writes_a_two_step_student_and_refuses_bad_input(
 
     teacher = _policy_run(tmp_path / "teacher", "flow")
     args = ["distill-policy", "--policy", str(teacher), "--dataset", str(synthetic_dataset_dir),
-            "--epochs", "1", "--max-windows", "16", "--val-windows", "8", "--no-progress"]  # fmt: skip
+            "--epochs", "1", "--max-windows", "16", "--val-windows", "8",
+            "--no-progress"]  # fmt: skip
     assert main([*args, "--out", str(tmp_path / "s2"), "--steps", "2"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["steps"] == 2 and summary["teacher_steps"] == 20

@@ -194,7 +194,7 @@ def distill_policy(
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
-            losses.append(float(loss))
+            losses.append(float(loss.detach()))
         dist = distance(student)
         row = {"epoch": epoch, "train_loss": sum(losses) / len(losses), "val_distance": dist}
         history_rows.append(row)
