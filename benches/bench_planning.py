@@ -70,7 +70,7 @@ def main() -> None:
     p.add_argument("--k", type=int, default=8)
     p.add_argument("--objectives", default="diffusion,flow")
     p.add_argument("--fast-steps", default="1,2,4,8,ref",
-                   help="comma list of fast-path step counts; 'ref' = the paper's 16 / 20")  # fmt: skip
+                   help="fast-path step counts; 'ref': the paper's 16 / 20")  # fmt: skip
     p.add_argument("--scorers", default="gru,wt", help="comma list of gru, wt")
     p.add_argument("--no-reference", action="store_true", help="skip the reference planner")
     p.add_argument("--breakdown", action="store_true", help="time the parts of a decision")

@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import torch
 import torch.nn.functional as F
@@ -52,7 +52,12 @@ from rmi_learn.policies.ranking import (
     clip_forces,
     world_model_scorer,
 )
-from rmi_learn.policies.unet import FiLMResidualBlock, PolicyUNet, sinusoidal_embedding
+from rmi_learn.policies.unet import (
+    Conv1dBlock,
+    FiLMResidualBlock,
+    PolicyUNet,
+    sinusoidal_embedding,
+)
 
 Objective = DiffusionObjective | FlowObjective
 
@@ -109,8 +114,8 @@ def schedule(objective: Objective, steps: int | None = None) -> Schedule:
         dt = 1.0 / n
         # float32 products as in the reference sampler (t in float32, then * time_scale).
         ts = torch.tensor([i * dt for i in range(n)], dtype=torch.float32)
-        times = tuple(float(v) for v in (ts * objective.time_scale).tolist())
-        return Schedule(times, (1.0,) * n, (dt,) * n)
+        flow_times = tuple(float(v) for v in (ts * objective.time_scale).tolist())
+        return Schedule(flow_times, (1.0,) * n, (dt,) * n)
     raise TypeError(f"unknown objective {type(objective).__name__}")
 
 
@@ -150,6 +155,12 @@ class FastSampler:
         for lv in net.up:
             blocks += [lv[0], lv[1]]  # type: ignore[index]
         self._params = [_block_params(b) for b in blocks]
+        final = cast(Conv1dBlock, net.final[0]).block
+        self._final = (
+            cast(nn.Conv1d, final[0]),
+            cast(nn.GroupNorm, final[1]),
+            cast(nn.Conv1d, net.final[1]),
+        )
         self._widths = [2 * b.c_out for b in blocks]
         te = cfg.time_embed_dim
         with torch.inference_mode():
@@ -170,7 +181,7 @@ class FastSampler:
         out = []
         for s in range(full.shape[0]):
             per_block = []
-            for chunk in full[s].split(self._widths, dim=-1):
+            for chunk in torch.split(full[s], self._widths, dim=-1):
                 scale, bias = chunk[:, None, :, None].chunk(2, dim=2)
                 per_block.append((scale, bias))
             out.append(per_block)
@@ -210,11 +221,10 @@ class FastSampler:
             i += 2
             up = lv[2]  # type: ignore[index]
             h = F.conv_transpose1d(h, up.weight, up.bias, stride=2, padding=1)
-        fin = net.final
-        conv, gn = fin[0].block[0], fin[0].block[1]  # type: ignore[index]
+        conv, gn, head = self._final
         h = mish(F.group_norm(F.conv1d(h, conv.weight, conv.bias, padding=self.pad),
                               self.groups, gn.weight, gn.bias))  # fmt: skip
-        out = F.conv1d(h, fin[1].weight, fin[1].bias)  # type: ignore[index]
+        out = F.conv1d(h, head.weight, head.bias)
         return out.transpose(1, 2)
 
     def sample_from_condition(self, obs_cond: Tensor, noise: Tensor) -> Tensor:
@@ -251,13 +261,13 @@ class FastSampler:
             return self.sample_from_condition(obs_cond, noise)
 
 
-class RealtimePlanner:
-    """:class:`~rmi_learn.policies.ranking.Planner`'s decision (K samples, scored with the
-    same cost, argmin) on the fast sampling path.
+class RealtimePlanner(Planner):
+    """:class:`~rmi_learn.policies.ranking.Planner` on the fast sampling path: the same
+    arguments, the same K samples for the same noise, the same cost and selection.
 
     ``steps`` overrides the objective's sampler step count (a distilled student's run
     records its own); ``threads`` sets ``torch.set_num_threads`` (process-wide) when given.
-    :meth:`plan` has :meth:`Planner.plan`'s contract; :meth:`act` is the controller's call.
+    :meth:`act` is the controller's call.
     """
 
     def __init__(
@@ -274,13 +284,8 @@ class RealtimePlanner:
     ) -> None:
         if threads is not None:
             torch.set_num_threads(threads)
-        self.policy = policy.eval()
+        super().__init__(policy, objective, scorer, standardiser, k, weights, force_limit)
         self.sampler = FastSampler(policy, objective, steps)
-        # The reference planner's scoring and cost are reused as they are.
-        self._ranker = Planner(policy, objective, scorer, standardiser, k, weights, force_limit)
-        self.std = standardiser
-        self.k = k
-        self.force_limit = force_limit
 
     @property
     def steps(self) -> int:
@@ -309,26 +314,10 @@ class RealtimePlanner:
         original_std: Tensor | None = None,
         generator: torch.Generator | None = None,
     ) -> PlanResult:
-        """Sample, score and select as :meth:`Planner.plan` (same arguments and result)."""
+        """:meth:`Planner.plan` in inference mode (same arguments and result)."""
         with torch.inference_mode():
-            goal = self.std.goal_vector(goal_std, water_now_std)
-            samples = self.sample(hist, hist_mask, goal, generator)
-            goal_kg = self.std.water_to_kg(goal_std)
-            original = None if original_std is None else self.std.u_to_phys(original_std)
-            cand = samples if original is None else torch.cat([samples, original[:, None]], 1)
-            costs, water = self._ranker.score(hist, hist_mask, cand, goal_kg)
-            k = self.k
-            sample_costs = {name: v[:, :k] for name, v in costs.items()}
-            orig_costs = {n: v[:, k] for n, v in costs.items()} if original is not None else {}
-            return PlanResult(
-                samples=samples,
-                index=sample_costs["J"].argmin(dim=1),
-                costs=sample_costs,
-                goal_kg=goal_kg,
-                pred_water_kg=water[:, :k],
-                original=original,
-                original_costs=orig_costs,
-            )
+            return super().plan(hist, hist_mask, goal_std, water_now_std, original_std,
+                                generator)  # fmt: skip
 
     def act(
         self,
