@@ -1,32 +1,79 @@
-"""Time one full planning decision (K = 8 policy samples + W_T scoring) on the CPU.
+"""Time one planning decision (K = 8 policy samples + world-model scoring) on the CPU.
 
 One decision = encode the history/goal once, draw K chunks of H_pi = 32 commands in one
-batch (16 DDIM steps for diffusion, 20 Euler steps for flow), destandardise and clip forces,
-roll the K chunks through the causal Transformer W_T (width 256, 8 heads, 3 + 4 layers) and
-take the argmin of J. Weights are random (the cost of a forward pass does not depend on
-them). Prints the median and quartiles in ms for both objectives.
+batch, destandardise and clip forces, roll the K chunks through a world model and take the
+argmin of J. Weights are random (the cost of a forward pass does not depend on them).
 
-    .venv/bin/python benches/bench_planning.py [--threads 2] [--reps 30] [--steps 16,8]
+Settings compared, interleaved decision by decision so that a shared machine's load falls
+on all of them alike:
+
+- ``ref``: the reference :class:`Planner` with the objective's own sampler (16 DDIM steps
+  for diffusion, 20 Euler steps for flow: the paper's tables);
+- ``fast``: :class:`RealtimePlanner` (``policies/realtime.py``) at each step count of
+  ``--fast-steps`` (a distilled student runs at 1 or 2 steps);
+
+each with the Transformer W_T (width 256, 8 heads, 3 + 4 layers) and with the AC-GRU-WM
+(native rollout where the extension has it) as scorer. Prints p50/p95 in ms and decisions
+per second, and with ``--breakdown`` where one decision's time goes (condition encoding,
+one UNet pass over the K samples in eager torch and on the fast path, with its FLOPs, and
+each scorer alone).
+
+    .venv/bin/python benches/bench_planning.py [--threads 2] [--reps 30] [--breakdown]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import platform
 import statistics
 import time
+from collections.abc import Callable
+from typing import Any
+
+
+def cpu_model() -> str:
+    """The CPU's model name (``lscpu``'s), or the platform's processor string."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def percentiles(times: list[float]) -> tuple[float, float]:
+    """(p50, p95) of ``times`` (at least two values)."""
+    q = statistics.quantiles(times, n=20, method="inclusive")
+    return statistics.median(times), q[18]
+
+
+def median_ms(fn: Callable[[], Any], reps: int, warmup: int = 3) -> float:
+    """Median wall time of ``fn()`` in ms."""
+    for _ in range(warmup):
+        fn()
+    ts = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        ts.append((time.perf_counter() - t0) * 1e3)
+    return statistics.median(ts)
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__)
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--threads", type=int, default=2)
-    p.add_argument("--reps", type=int, default=30)
+    p.add_argument("--reps", type=int, default=30, help="decisions per setting (>= 2)")
     p.add_argument("--warmup", type=int, default=3)
     p.add_argument("--k", type=int, default=8)
-    p.add_argument(
-        "--diffusion-steps", default="16", help="comma list of DDIM steps to time (paper: 16)"
-    )
-    p.add_argument("--flow-steps", default="20", help="comma list of Euler steps (paper: 20)")
+    p.add_argument("--objectives", default="diffusion,flow")
+    p.add_argument("--fast-steps", default="1,2,4,8,ref",
+                   help="fast-path step counts; 'ref': the paper's 16 / 20")  # fmt: skip
+    p.add_argument("--scorers", default="gru,wt", help="comma list of gru, wt")
+    p.add_argument("--no-reference", action="store_true", help="skip the reference planner")
+    p.add_argument("--breakdown", action="store_true", help="time the parts of a decision")
     p.add_argument("--json", action="store_true", help="print one JSON line per setting")
     args = p.parse_args()
 
@@ -35,13 +82,16 @@ def main() -> None:
     from rmi_learn.policies.diffusion import DiffusionObjective
     from rmi_learn.policies.flow import FlowObjective
     from rmi_learn.policies.ranking import Planner, Standardiser, world_model_scorer
+    from rmi_learn.policies.realtime import FastSampler, RealtimePlanner
     from rmi_learn.policies.unet import PolicyUNet, UNetConfig
     from rmi_learn.world_models import build
+    from rmi_learn.world_models.gru import _native_class
 
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     net = PolicyUNet(UNetConfig()).eval()
-    wm = build({"kind": "transformer"}).eval()
+    wms = {"wt": build({"kind": "transformer"}).eval(), "gru": build({"kind": "ac-gru"}).eval()}
+    scorers = {name: world_model_scorer(wms[name]) for name in args.scorers.split(",")}
     std = Standardiser(
         z_mean=torch.zeros(18), z_std=torch.full((18,), 0.1),
         u_mean=torch.tensor([150.0, 0.0]), u_std=torch.tensor([80.0, 0.01]),
@@ -50,54 +100,91 @@ def main() -> None:
     mask = torch.ones(1, 16, 23)
     goal = torch.tensor([0.5])
     water = torch.tensor([1.0])
-    settings: list[tuple[str, object, int]] = []
-    for s in args.diffusion_steps.split(","):
-        settings.append(("diffusion", DiffusionObjective(n_sample_steps=int(s)), int(s)))
-    for s in args.flow_steps.split(","):
-        settings.append(("flow", FlowObjective(n_sample_steps=int(s)), int(s)))
-    for name, objective, steps in settings:
-        planner = Planner(net, objective, world_model_scorer(wm), std, k=args.k)
-        gen = torch.Generator().manual_seed(0)
-        times = []
-        with torch.inference_mode():
-            for i in range(args.warmup + args.reps):
+    paper = {"diffusion": 16, "flow": 20}
+    make = {"diffusion": DiffusionObjective, "flow": FlowObjective}
+
+    planners: list[tuple[dict[str, Any], Any]] = []
+    for obj in args.objectives.split(","):
+        for sc_name, scorer in scorers.items():
+            if not args.no_reference:
+                ref = Planner(net, make[obj](), scorer, std, k=args.k)
+                planners.append(({"path": "ref", "objective": obj, "steps": paper[obj],
+                                  "scorer": sc_name}, ref))  # fmt: skip
+            for s in args.fast_steps.split(","):
+                n = paper[obj] if s == "ref" else int(s)
+                fast = RealtimePlanner(net, make[obj](), scorer, std, k=args.k, steps=n)
+                planners.append(({"path": "fast", "objective": obj, "steps": n,
+                                  "scorer": sc_name}, fast))  # fmt: skip
+
+    header = {
+        "cpu": cpu_model(),
+        "threads": args.threads,
+        "k": args.k,
+        "torch": torch.__version__,
+        "gru_native": _native_class() is not None,
+        "date": time.strftime("%Y-%m-%d"),
+    }
+    print(json.dumps(header) if args.json else " ".join(f"{k}={v}" for k, v in header.items()))
+
+    gen = torch.Generator().manual_seed(0)
+    times: list[list[float]] = [[] for _ in planners]
+    with torch.inference_mode():
+        for rep in range(args.warmup + args.reps):
+            # Interleaved: one decision of every setting per round.
+            for i, (_, planner) in enumerate(planners):
                 t0 = time.perf_counter()
                 planner.plan(hist, mask, goal, water, None, gen)
                 dt = (time.perf_counter() - t0) * 1e3
-                if i >= args.warmup:
-                    times.append(dt)
-            # split: sampling alone vs scoring alone
-            goal_vec = std.goal_vector(goal, water)
-            ts, tw = [], []
-            for _ in range(max(5, args.reps // 3)):
-                t0 = time.perf_counter()
-                u = planner.sample(hist, mask, goal_vec, gen)
-                t1 = time.perf_counter()
-                planner.score(hist, mask, u, std.water_to_kg(goal))
-                t2 = time.perf_counter()
-                ts.append((t1 - t0) * 1e3)
-                tw.append((t2 - t1) * 1e3)
-        q = statistics.quantiles(times, n=4)
-        rec = {
-            "objective": name,
-            "steps": steps,
-            "k": args.k,
-            "threads": args.threads,
-            "median_ms": statistics.median(times),
-            "q1_ms": q[0],
-            "q3_ms": q[2],
-            "sampling_median_ms": statistics.median(ts),
-            "scoring_median_ms": statistics.median(tw),
-        }
+                if rep >= args.warmup:
+                    times[i].append(dt)
+    for (rec, _), ts in zip(planners, times, strict=True):
+        p50, p95 = percentiles(ts)
+        rec = {**rec, "p50_ms": p50, "p95_ms": p95, "decisions_per_s": 1e3 / p50, "n": len(ts)}
         if args.json:
             print(json.dumps(rec))
         else:
-            print(
-                f"{name:9s} steps={steps:2d} K={args.k} threads={args.threads}: "
-                f"median {rec['median_ms']:.1f} ms (IQR {q[0]:.1f}-{q[2]:.1f}); "
-                f"sampling {rec['sampling_median_ms']:.1f} ms, "
-                f"scoring {rec['scoring_median_ms']:.1f} ms"
-            )
+            print(f"{rec['path']:4s} {rec['objective']:9s} steps={rec['steps']:2d} "
+                  f"scorer={rec['scorer']:3s}: p50 {p50:6.1f} ms  p95 {p95:6.1f} ms  "
+                  f"{rec['decisions_per_s']:5.1f} decisions/s")  # fmt: skip
+
+    if args.breakdown:
+        breakdown(net, wms, hist, mask, args, FastSampler, FlowObjective)
+
+
+def breakdown(net: Any, wms: dict[str, Any], hist: Any, mask: Any, args: Any,
+              fast_sampler: Any, flow: Any) -> None:  # fmt: skip
+    """Median ms of each part of one decision, and the UNet pass's FLOPs."""
+    import torch
+    from torch.utils.flop_counter import FlopCounterMode
+
+    k, reps = args.k, max(args.reps, 10)
+    goal_vec = torch.randn(1, 2)
+    x = torch.randn(k, 32, 2)
+    t = torch.full((k,), 10.0)
+    u = torch.randn(k, 32, 2)
+    sampler = fast_sampler(net, flow(), 1)
+    parts: dict[str, float] = {}
+    with torch.inference_mode():
+        cond = net.encode_condition(hist, mask, goal_vec)
+        film = sampler.film(cond)[0]
+        with FlopCounterMode(display=False) as counter:
+            net.denoise(x, t, cond.expand(k, -1))
+        gflop = counter.get_total_flops() / 1e9
+        parts["encode history+goal (1 window)"] = median_ms(
+            lambda: net.encode_condition(hist, mask, goal_vec), reps)
+        parts[f"UNet pass, eager, batch {k}"] = median_ms(
+            lambda: net.denoise(x, t, cond.expand(k, -1)), reps)
+        parts["FiLM tables, fast path (per decision)"] = median_ms(lambda: sampler.film(cond), reps)
+        parts[f"UNet pass, fast path, batch {k}"] = median_ms(
+            lambda: sampler.denoise(x, film, 1), reps)
+        parts[f"W_T scoring {k} x 32"] = median_ms(
+            lambda: wms["wt"].predict(hist.expand(k, -1, -1), mask.expand(k, -1, -1), u), reps)
+        parts[f"AC-GRU-WM scoring {k} x 32"] = median_ms(
+            lambda: wms["gru"].predict(hist, mask, u), reps)  # fmt: skip
+    for name, ms in parts.items():
+        print(f"{name:40s} {ms:7.2f} ms")
+    for name in (f"UNet pass, eager, batch {k}", f"UNet pass, fast path, batch {k}"):
+        print(f"{name:40s} {gflop:.2f} GFLOP -> {gflop / parts[name] * 1e3:.0f} GFLOP/s")
 
 
 if __name__ == "__main__":
