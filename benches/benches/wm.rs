@@ -1,4 +1,4 @@
-//! Criterion bench of world-model scoring (issue 6): the native free rollout of an
+//! Criterion bench of world-model scoring: the native free rollout of an
 //! AC-GRU-WM of the paper's size (random weights) over 8 command chunks of 32 steps against
 //! one 16-step history, on 1 and 2 threads. The Python figure, with the call overhead, comes
 //! from `benches/bench_wm_latency.py`.
