@@ -12,7 +12,7 @@ mod io;
 mod queries;
 mod step;
 
-pub use io::{write_atomic, Snapshot};
+pub use io::{fnv1a64, read_limited, read_state, seal, unseal, write_atomic, Snapshot};
 pub use step::StepStats;
 
 use crate::config::SimConfig;
