@@ -207,10 +207,9 @@ pub fn default_value() -> Value {
 /// Builds and validates a `TrialConfig` from JSON overlaid on the defaults.
 pub fn from_value(given: &Value) -> Result<TrialConfig, RmiError> {
     let merged = overlay(&default_value(), given, "")?;
-    let cfg: TrialConfig = serde_json::from_value(merged)
-        .map_err(|e| RmiError::config("trial", e.to_string(), "a table matching TrialConfig"))?;
+    let cfg: TrialConfig = rmi_sph::config::from_value_named(&merged)?;
     cfg.validate()?;
-    Ok(cfg)
+    Ok(cfg.normalised())
 }
 
 /// Where a config comes from: a dict, as JSON, or JSON text (given, or read from a file).
@@ -263,9 +262,19 @@ pub fn extract_sim(obj: &Bound<'_, PyAny>) -> PyResult<SimConfig> {
     SimConfig::from_json(&text).map_err(to_pyerr)
 }
 
+/// Longest config file read (bytes): real ones are a few kB.
+const MAX_CONFIG_BYTES: u64 = 4 << 20;
+
+/// The text of a config file: a regular file of at most [`MAX_CONFIG_BYTES`] in UTF-8.
 fn read(path: &str) -> PyResult<String> {
-    std::fs::read_to_string(path)
-        .map_err(|e| to_pyerr(RmiError::Io(std::io::Error::new(e.kind(), format!("{path}: {e}")))))
+    let at = |e: std::io::Error| to_pyerr(RmiError::Io(std::io::Error::new(e.kind(), format!("{path}: {e}"))));
+    let bytes = rmi_sph::simulation::read_limited(std::path::Path::new(path), MAX_CONFIG_BYTES, "config file")
+        .map_err(|e| match e {
+            RmiError::Io(err) if err.to_string().contains(path) => to_pyerr(RmiError::Io(err)),
+            RmiError::Io(err) => at(err),
+            other => to_pyerr(other),
+        })?;
+    String::from_utf8(bytes).map_err(|e| at(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))
 }
 
 /// JSON text as Python objects (floats round-trip exactly).

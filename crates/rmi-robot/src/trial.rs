@@ -22,7 +22,8 @@ use serde::{Deserialize, Serialize};
 pub struct TrialConfig {
     /// Sponge size along x (squeeze axis), y and z (height) (m).
     pub size: [f64; 3],
-    /// Porosity phi (overrides `material.porosity`).
+    /// Porosity phi of the skeleton (-); the source of truth: `material.porosity` is
+    /// validated and then set to it ([`TrialConfig::normalised`]).
     pub porosity: f64,
     /// Holding force before and during the lift (N).
     pub hold_force: f64,
@@ -87,11 +88,21 @@ impl Default for TrialConfig {
 
 impl TrialConfig {
     /// Parses JSON (unknown fields are errors naming the field), then validates.
+    /// Values serde refuses (an integer out of range, an unknown `wall_layer`) are errors
+    /// naming their dotted path. `material.porosity` takes the value of `porosity`.
     pub fn from_json(s: &str) -> Result<Self> {
-        let c: TrialConfig = serde_json::from_str(s)
+        let value: serde_json::Value = serde_json::from_str(s)
             .map_err(|e| RmiError::config("trial", e.to_string(), "valid JSON matching TrialConfig"))?;
+        let c: TrialConfig = rmi_sph::config::from_value_named(&value)?;
         c.validate()?;
-        Ok(c)
+        Ok(c.normalised())
+    }
+
+    /// This config with `material.porosity` set to `porosity`, the value the scene uses (so
+    /// that the config reads as what it simulates).
+    pub fn normalised(mut self) -> Self {
+        self.material.porosity = self.porosity;
+        self
     }
 
     /// JSON text of this config.
@@ -105,6 +116,9 @@ impl TrialConfig {
             check_range(&format!("size[{k}]"), *s, 0.01, 1.0, "m")?;
         }
         check_range("porosity", self.porosity, 0.05, 0.95, "(dimensionless)")?;
+        // Every field of the material under its own name; its porosity is replaced by
+        // `porosity` but must still be a porosity.
+        self.material.validate("material")?;
         check_range("hold_force", self.hold_force, 0.0, FORCE_LIMIT, "N")?;
         check_range("squeeze_force", self.squeeze_force, 0.0, FORCE_LIMIT, "N")?;
         check_range("jitter", self.jitter, 0.0, 0.25, "(fraction of the spacing)")?;
@@ -236,6 +250,7 @@ impl Trial {
     /// Builds the scene and the robot layer; `threads = None` uses the default count.
     pub fn new(cfg: TrialConfig, threads: Option<usize>) -> Result<Self> {
         cfg.validate()?;
+        let cfg = cfg.normalised();
         let sim = Simulation::new(cfg.sim_config(), threads)?;
         Self::around(cfg, sim)
     }

@@ -422,9 +422,10 @@ impl PorousMaterial {
 impl SimConfig {
     /// Parses a JSON document (unknown fields are rejected) and validates it.
     pub fn from_json(text: &str) -> Result<Self> {
-        let cfg: SimConfig = serde_json::from_str(text).map_err(|e| {
+        let value: serde_json::Value = serde_json::from_str(text).map_err(|e| {
             RmiError::config(json_path_hint(&e), "(malformed)", format!("valid JSON for SimConfig: {e}"))
         })?;
+        let cfg: SimConfig = from_value_named(&value)?;
         cfg.validate()?;
         Ok(cfg)
     }
@@ -612,6 +613,65 @@ pub fn memory_limit() -> f64 {
             Some(kib * 1024.0)
         })
         .unwrap_or(FALLBACK_MEMORY_LIMIT)
+}
+
+/// Deserialises a config of type `T` from JSON; a value serde refuses (an integer out of
+/// its type's range, an unknown enum name, a wrong type) is an [`RmiError::InvalidConfig`]
+/// naming its dotted path, found by trying each differing value alone on `T`'s default.
+pub fn from_value_named<T>(value: &serde_json::Value) -> Result<T>
+where
+    T: serde::de::DeserializeOwned + Serialize + Default,
+{
+    let err = match serde_json::from_value::<T>(value.clone()) {
+        Ok(cfg) => return Ok(cfg),
+        Err(e) => e,
+    };
+    let root = serde_json::to_value(T::default()).expect("a default config serialises");
+    let fails = |candidate: &serde_json::Value| serde_json::from_value::<T>(candidate.clone()).is_err();
+    let (field, shown) = locate(&root, &root, value, "", "", &fails)
+        .unwrap_or_else(|| ("(config)".to_owned(), "(see expected)".to_owned()));
+    Err(RmiError::config(field, shown, err.to_string()))
+}
+
+/// The dotted path (and the value, as text) of the first entry of `given` that alone makes
+/// `root` fail `fails`, `default` and `given` being the subtrees at JSON pointer `ptr`.
+fn locate(
+    root: &serde_json::Value,
+    default: &serde_json::Value,
+    given: &serde_json::Value,
+    ptr: &str,
+    dotted: &str,
+    fails: &dyn Fn(&serde_json::Value) -> bool,
+) -> Option<(String, String)> {
+    use serde_json::Value;
+    let entries: Vec<(String, String, Option<&Value>, &Value)> = match (default, given) {
+        (Value::Object(d), Value::Object(g)) => g
+            .iter()
+            .map(|(k, gv)| {
+                let sub = if dotted.is_empty() { k.clone() } else { format!("{dotted}.{k}") };
+                (format!("{ptr}/{}", k.replace('~', "~0").replace('/', "~1")), sub, d.get(k), gv)
+            })
+            .collect(),
+        (Value::Array(d), Value::Array(g)) if d.len() == g.len() => {
+            g.iter().enumerate().map(|(i, gv)| (format!("{ptr}/{i}"), format!("{dotted}[{i}]"), d.get(i), gv)).collect()
+        }
+        _ => return None,
+    };
+    for (p, sub, dv, gv) in entries {
+        let Some(dv) = dv else {
+            // Unknown key: nothing to compare it with.
+            return Some((sub, "(unknown field)".to_owned()));
+        };
+        if dv == gv {
+            continue;
+        }
+        let mut candidate = root.clone();
+        *candidate.pointer_mut(&p)? = gv.clone();
+        if fails(&candidate) {
+            return locate(root, dv, gv, &p, &sub, fails).or_else(|| Some((sub, gv.to_string())));
+        }
+    }
+    None
 }
 
 fn json_path_hint(e: &serde_json::Error) -> String {
