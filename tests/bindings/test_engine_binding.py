@@ -163,7 +163,7 @@ def test_bad_config_names_the_field(dam: dict[str, Any], tmp_path: Path) -> None
     assert isinstance(info.value, ValueError)
     with pytest.raises(rmi_sph.ConfigError) as info:
         engine.Simulation({"fluid": {"densty": 1000.0}})
-    assert info.value.field == "densty"
+    assert info.value.field == "fluid.densty"
     with pytest.raises(rmi_sph.ConfigError) as info:
         engine.validate_config({"dt": float("nan")})
     assert info.value.field == "dt"

@@ -177,6 +177,10 @@ pub fn at_path(e: CoreError, path: &std::path::Path) -> PyErr {
                 let strerror = text.trim_end_matches(&format!(" (os error {code})")).to_owned();
                 pyo3::exceptions::PyOSError::new_err((code, strerror, path.display().to_string()))
             }
+            // The engine's own texts may name the path already.
+            None if err.to_string().contains(&*path.to_string_lossy()) => {
+                pyo3::exceptions::PyOSError::new_err(err.to_string())
+            }
             None => pyo3::exceptions::PyOSError::new_err(format!("{}: {err}", path.display())),
         },
         other => to_pyerr(other),

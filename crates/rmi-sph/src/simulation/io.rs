@@ -229,6 +229,9 @@ fn refuse_special(path: &std::path::Path) -> Result<()> {
         Ok(m) if m.file_type().is_symlink() => {
             Err(invalid_path(path, "is a symbolic link; states are written only to regular files"))
         }
+        // A directory keeps the system's error (EISDIR), as writing to it would give.
+        #[cfg(unix)]
+        Ok(m) if m.is_dir() => Err(std::io::Error::from_raw_os_error(21).into()),
         Ok(m) if !m.is_file() => Err(invalid_path(path, "exists and is not a regular file")),
         Ok(_) => Ok(()),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
