@@ -180,12 +180,12 @@ def test_concurrent_saves_and_special_paths(tmp_path: Path) -> None:
         for _ in range(30):
             t.save(p)
 
-    threads = [threading.Thread(target=save, args=tp) for tp in zip(trials, paths)]
+    threads = [threading.Thread(target=save, args=tp) for tp in zip(trials, paths, strict=True)]
     for th in threads:
         th.start()
     for th in threads:
         th.join()
-    for t, p in zip(trials, paths):
+    for t, p in zip(trials, paths, strict=True):
         assert rmi_sph.Trial.load(p).get_state() == t.get_state()
     assert sorted(os.listdir(tmp_path)) == ["ck.a", "ck.b"]
     link = tmp_path / "link"
