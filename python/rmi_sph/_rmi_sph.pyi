@@ -140,7 +140,10 @@ class Trial:
     def get_state(self) -> bytes:
         """The full state as bytes."""
     def set_state(self, state: bytes) -> None:
-        """Replace the whole state with one from ``get_state``."""
+        """Replace the whole state with one from ``get_state`` of a trial of the same config.
+
+        Raises StateError (the trial unchanged) for bytes that are not a state or a state
+        of another config; ``Trial.from_state`` makes a trial of any state."""
     @staticmethod
     def from_state(state: bytes, num_threads: int | None = None) -> Trial:
         """A trial continuing from ``state``."""

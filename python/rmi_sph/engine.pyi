@@ -154,12 +154,13 @@ class Simulation:
     def get_state(self) -> bytes:
         """The full state as bytes (for ``set_state`` or ``from_state``)."""
     def set_state(self, state: bytes) -> None:
-        """Replace the whole state (config included) with one from ``get_state``.
+        """Replace the whole state with one from ``get_state`` of the same config.
 
         Raises
         ------
         StateError
-            ``state`` is not a state.
+            ``state`` is not a state, or is a state of another config (the simulation is
+            unchanged; ``Simulation.from_state`` makes a simulation of any state).
         """
     @staticmethod
     def from_state(state: bytes, num_threads: int | None = None) -> Simulation:

@@ -294,7 +294,9 @@ def test_state_and_pickle_continue_identically(cfg: dict[str, Any], tmp_path: Pa
     from_state = rmi_sph.Trial.from_state(state, num_threads=2)
     sim.save(tmp_path / "s.bin")
     loaded = rmi_sph.Trial.load(tmp_path / "s.bin", num_threads=1)
-    other = rmi_sph.Trial(tiny_config(jitter=0.1), num_threads=1)
+    with pytest.raises(rmi_sph.StateError, match="jitter"):
+        rmi_sph.Trial(tiny_config(jitter=0.1), num_threads=1).set_state(state)
+    other = rmi_sph.Trial(cfg, num_threads=1)
     other.set_state(state)
     assert other.config == cfg and other.time == sim.time and other.phase == sim.phase
     ref = _continue(sim)

@@ -13,9 +13,20 @@ use rmi_sph::presets::SPONGE_SIZES;
 use rmi_sph::{RmiError, SimConfig};
 use serde_json::{Map, Number, Value};
 
+/// Deepest nesting of lists and tables a config value may have: real configs nest at most
+/// four levels; the limit keeps a self-referencing or absurdly deep value from exhausting the
+/// stack.
+pub const MAX_DEPTH: usize = 64;
+
 /// Converts a Python object (dict, list, tuple, number, bool, str, None, numpy scalar or
-/// array) into JSON; `path` names it in errors.
+/// array) into JSON; `path` names it in errors. Nesting deeper than [`MAX_DEPTH`] and
+/// containers that contain themselves are `ConfigError`s naming the path.
 pub fn to_value(obj: &Bound<'_, PyAny>, path: &str) -> PyResult<Value> {
+    to_value_at(obj, path, &mut Vec::new())
+}
+
+/// [`to_value`] with the containers on the path from the root (their object addresses).
+fn to_value_at(obj: &Bound<'_, PyAny>, path: &str, open: &mut Vec<usize>) -> PyResult<Value> {
     if obj.is_none() {
         return Ok(Value::Null);
     }
@@ -40,35 +51,77 @@ pub fn to_value(obj: &Bound<'_, PyAny>, path: &str) -> PyResult<Value> {
     if let Ok(s) = obj.cast::<PyString>() {
         return Ok(Value::String(s.to_str()?.to_owned()));
     }
-    if let Ok(d) = obj.cast::<PyDict>() {
+    let is_dict = obj.is_instance_of::<PyDict>();
+    let is_list = obj.is_instance_of::<PyList>() || obj.is_instance_of::<PyTuple>();
+    let has_tolist = !is_dict && !is_list && obj.hasattr("tolist")?;
+    if !(is_dict || is_list || has_tolist) {
+        return Err(PyTypeError::new_err(format!(
+            "config field `{}` has unsupported type {}; use numbers, bools, strings, lists and dicts",
+            shown(path),
+            obj.get_type().name()?
+        )));
+    }
+    let id = obj.as_ptr() as usize;
+    if open.contains(&id) {
+        return Err(to_pyerr(RmiError::config(
+            shown(path),
+            "(a container that contains itself)",
+            "a value without cycles",
+        )));
+    }
+    if open.len() >= MAX_DEPTH {
+        return Err(to_pyerr(RmiError::config(
+            shown(path),
+            "(nesting deeper than 64)",
+            format!("lists and tables nested at most {MAX_DEPTH} deep"),
+        )));
+    }
+    open.push(id);
+    let out = nested(obj, path, open, is_dict, is_list);
+    open.pop();
+    out
+}
+
+/// The JSON of a dict, list, tuple or object with `tolist()` (numpy), one level below `open`.
+fn nested(obj: &Bound<'_, PyAny>, path: &str, open: &mut Vec<usize>, is_dict: bool, is_list: bool) -> PyResult<Value> {
+    if is_dict {
         let mut map = Map::new();
-        for (k, v) in d.iter() {
-            let key: String =
-                k.extract().map_err(|_| to_pyerr(RmiError::config(path, k.to_string(), "a table with string keys")))?;
+        for (k, v) in obj.cast::<PyDict>()?.iter() {
+            let key: String = k
+                .extract()
+                .map_err(|_| to_pyerr(RmiError::config(shown(path), k.to_string(), "a table with string keys")))?;
             let sub = join(path, &key);
-            map.insert(key, to_value(&v, &sub)?);
+            map.insert(key, to_value_at(&v, &sub, open)?);
         }
         return Ok(Value::Object(map));
     }
-    if obj.is_instance_of::<PyList>() || obj.is_instance_of::<PyTuple>() {
+    if is_list {
         let mut out = Vec::new();
         for (i, v) in obj.try_iter()?.enumerate() {
-            out.push(to_value(&v?, &format!("{path}[{i}]"))?);
+            out.push(to_value_at(&v?, &format!("{path}[{i}]"), open)?);
         }
         return Ok(Value::Array(out));
     }
-    // numpy scalars and arrays (and anything else with the same protocol).
-    if obj.hasattr("tolist")? {
-        let plain = obj.call_method0("tolist")?;
-        if !plain.is(obj) {
-            return to_value(&plain, path);
-        }
+    // numpy scalars and arrays (and anything else with the same protocol); an object whose
+    // `tolist()` returns another such object counts one level deeper each time.
+    let plain = obj.call_method0("tolist")?;
+    if plain.is(obj) {
+        return Err(PyTypeError::new_err(format!(
+            "config field `{}` has unsupported type {} (its tolist() returns itself)",
+            shown(path),
+            obj.get_type().name()?
+        )));
     }
-    Err(PyTypeError::new_err(format!(
-        "config field `{}` has unsupported type {}; use numbers, bools, strings, lists and dicts",
-        if path.is_empty() { "<root>" } else { path },
-        obj.get_type().name()?
-    )))
+    to_value_at(&plain, path, open)
+}
+
+/// A path as errors show it (`<root>` for the whole value).
+fn shown(path: &str) -> &str {
+    if path.is_empty() {
+        "<root>"
+    } else {
+        path
+    }
 }
 
 fn join(path: &str, key: &str) -> String {
@@ -154,10 +207,9 @@ pub fn default_value() -> Value {
 /// Builds and validates a `TrialConfig` from JSON overlaid on the defaults.
 pub fn from_value(given: &Value) -> Result<TrialConfig, RmiError> {
     let merged = overlay(&default_value(), given, "")?;
-    let cfg: TrialConfig = serde_json::from_value(merged)
-        .map_err(|e| RmiError::config("trial", e.to_string(), "a table matching TrialConfig"))?;
+    let cfg: TrialConfig = rmi_sph::config::from_value_named(&merged)?;
     cfg.validate()?;
-    Ok(cfg)
+    Ok(cfg.normalised())
 }
 
 /// Where a config comes from: a dict, as JSON, or JSON text (given, or read from a file).
@@ -210,9 +262,19 @@ pub fn extract_sim(obj: &Bound<'_, PyAny>) -> PyResult<SimConfig> {
     SimConfig::from_json(&text).map_err(to_pyerr)
 }
 
+/// Longest config file read (bytes): real ones are a few kB.
+const MAX_CONFIG_BYTES: u64 = 4 << 20;
+
+/// The text of a config file: a regular file of at most [`MAX_CONFIG_BYTES`] in UTF-8.
 fn read(path: &str) -> PyResult<String> {
-    std::fs::read_to_string(path)
-        .map_err(|e| to_pyerr(RmiError::Io(std::io::Error::new(e.kind(), format!("{path}: {e}")))))
+    let at = |e: std::io::Error| to_pyerr(RmiError::Io(std::io::Error::new(e.kind(), format!("{path}: {e}"))));
+    let bytes = rmi_sph::simulation::read_limited(std::path::Path::new(path), MAX_CONFIG_BYTES, "config file")
+        .map_err(|e| match e {
+            RmiError::Io(err) if err.to_string().contains(path) => to_pyerr(RmiError::Io(err)),
+            RmiError::Io(err) => at(err),
+            other => to_pyerr(other),
+        })?;
+    String::from_utf8(bytes).map_err(|e| at(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))
 }
 
 /// JSON text as Python objects (floats round-trip exactly).

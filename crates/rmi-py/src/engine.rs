@@ -4,7 +4,7 @@
 
 use crate::config;
 use crate::convert;
-use crate::errors::{threads, unsigned};
+use crate::errors::{int_arg, threads};
 use crate::held::{self, Held, Stateful};
 use crate::panic::{catch, into_py};
 use pyo3::prelude::*;
@@ -40,6 +40,9 @@ impl Stateful for Simulation {
         let mut sim = Simulation::load(path, threads)?;
         sim.update_fields();
         Ok(sim)
+    }
+    fn config_json(&self) -> String {
+        self.config().to_json()
     }
 }
 
@@ -89,7 +92,11 @@ fn cg_dict(py: Python<'_>, iterations: u32, residual: f64) -> PyResult<Bound<'_,
 impl PySimulation {
     #[new]
     #[pyo3(signature = (config, *, num_threads=None))]
-    fn new(py: Python<'_>, config: &Bound<'_, PyAny>, num_threads: Option<i64>) -> PyResult<Self> {
+    fn new(
+        py: Python<'_>,
+        config: &Bound<'_, PyAny>,
+        #[pyo3(from_py_with = crate::errors::any_int_opt)] num_threads: Option<i128>,
+    ) -> PyResult<Self> {
         let num_threads = threads(num_threads)?;
         let cfg = config::extract_sim(config)?;
         let sim = py.detach(|| {
@@ -111,8 +118,8 @@ impl PySimulation {
     /// SimulationUnstableError
     ///     The step diverged; the state stays at the last good step.
     #[pyo3(signature = (n=1))]
-    fn step(&mut self, py: Python<'_>, n: i64) -> PyResult<u64> {
-        let n: u64 = unsigned("n", n, "a non-negative integer (steps)")?;
+    fn step(&mut self, py: Python<'_>, #[pyo3(from_py_with = crate::errors::any_int)] n: i128) -> PyResult<u64> {
+        let n: u64 = int_arg(n, "n", "a non-negative integer (steps)")?;
         self.held.step(py, n, |sim| sim.step().map(|_| true))
     }
 
@@ -181,11 +188,11 @@ impl PySimulation {
     #[pyo3(signature = (body, velocity, angular_velocity=None))]
     fn set_body_velocity(
         &mut self,
-        body: i64,
+        #[pyo3(from_py_with = crate::errors::any_int)] body: i128,
         velocity: (f64, f64, f64),
         angular_velocity: Option<(f64, f64, f64)>,
     ) -> PyResult<()> {
-        let body: usize = unsigned("body", body, "an existing body index")?;
+        let body: usize = int_arg(body, "body", "an existing body index")?;
         let v = [velocity.0, velocity.1, velocity.2];
         let w = angular_velocity.map_or([0.0; 3], |w| [w.0, w.1, w.2]);
         let sim = self.held.get_mut()?;
@@ -226,13 +233,13 @@ impl PySimulation {
     /// the block's current pore volume times its saturation (of the last step).
     ///
     /// Raises ConfigError for a block that does not exist.
-    fn pore_water(&mut self, block: i64) -> PyResult<f64> {
+    fn pore_water(&mut self, #[pyo3(from_py_with = crate::errors::any_int)] block: i128) -> PyResult<f64> {
         let sim = self.sim()?;
         let n = sim.objects().len();
         let expected = || format!("an index of the scene's porous blocks (it has {n})");
-        let k: usize = unsigned("block", block, &expected())?;
+        let k: usize = int_arg(block, "block", &expected())?;
         if k >= n {
-            return Err(crate::errors::to_pyerr(RmiError::config("block", block, expected())));
+            return Err(crate::errors::to_pyerr(RmiError::config("block", k, expected())));
         }
         Ok(sim.pore_water(k))
     }
@@ -243,8 +250,10 @@ impl PySimulation {
         self.held.state(py)
     }
 
-    /// Replaces the whole state (its config included) with one from ``get_state``. Raises
-    /// StateError for bytes that are not a state.
+    /// Replaces the whole state with one from ``get_state`` of a simulation of the same
+    /// config. Raises StateError for bytes that are not a state or a state of another config
+    /// (``Simulation.from_state`` makes a simulation of any state); the simulation is
+    /// unchanged then.
     fn set_state(&mut self, py: Python<'_>, state: &Bound<'_, PyAny>) -> PyResult<()> {
         self.held.set_state(py, state)
     }
@@ -252,7 +261,11 @@ impl PySimulation {
     /// A simulation continuing from ``state`` (bytes of ``get_state``).
     #[staticmethod]
     #[pyo3(signature = (state, num_threads=None))]
-    fn from_state(py: Python<'_>, state: &Bound<'_, PyAny>, num_threads: Option<i64>) -> PyResult<Self> {
+    fn from_state(
+        py: Python<'_>,
+        state: &Bound<'_, PyAny>,
+        #[pyo3(from_py_with = crate::errors::any_int_opt)] num_threads: Option<i128>,
+    ) -> PyResult<Self> {
         let num_threads = threads(num_threads)?;
         Ok(PySimulation { held: Held::new(held::from_state(py, state, num_threads)?, num_threads) })
     }
@@ -265,7 +278,11 @@ impl PySimulation {
     /// A simulation continuing from a state file written by ``save``.
     #[staticmethod]
     #[pyo3(signature = (path, num_threads=None))]
-    fn load(py: Python<'_>, path: PathBuf, num_threads: Option<i64>) -> PyResult<Self> {
+    fn load(
+        py: Python<'_>,
+        path: PathBuf,
+        #[pyo3(from_py_with = crate::errors::any_int_opt)] num_threads: Option<i128>,
+    ) -> PyResult<Self> {
         let num_threads = threads(num_threads)?;
         Ok(PySimulation { held: Held::new(held::load(py, &path, num_threads)?, num_threads) })
     }

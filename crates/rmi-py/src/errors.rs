@@ -117,17 +117,52 @@ fn build_pyerr(py: Python<'_>, e: CoreError) -> PyResult<PyErr> {
     })
 }
 
-/// An integer argument that must not be negative, as the unsigned type `T`, or a
-/// `ConfigError` naming `field` with the `expected` range: pyo3's own conversion would raise a
-/// bare `OverflowError` that names nothing.
-pub fn unsigned<T: TryFrom<i64>>(field: &str, value: i64, expected: &str) -> PyResult<T> {
-    T::try_from(value).map_err(|_| to_pyerr(CoreError::config(field, value, expected)))
+/// A Python integer of any size, clamped to the 128-bit range (for `from_py_with`, so that
+/// a huge value reaches the range check of [`int_arg`] instead of raising `OverflowError`).
+pub fn any_int(value: &Bound<'_, PyAny>) -> PyResult<i128> {
+    match value.extract::<i128>() {
+        Ok(v) => Ok(v),
+        Err(e) if e.is_instance_of::<pyo3::exceptions::PyOverflowError>(value.py()) => {
+            Ok(if value.lt(0)? { i128::MIN } else { i128::MAX })
+        }
+        Err(e) => Err(e),
+    }
 }
 
-/// A `num_threads` argument: `None` keeps the default; a negative count is the engine's own
-/// `num_threads` error (0 and too many are the engine's to reject).
-pub fn threads(value: Option<i64>) -> PyResult<Option<usize>> {
-    value.map(|v| usize::try_from(v).map_err(|_| to_pyerr(rmi_sph::simulation::threads_error(v)))).transpose()
+/// [`any_int`] for an optional argument.
+pub fn any_int_opt(value: &Bound<'_, PyAny>) -> PyResult<Option<i128>> {
+    if value.is_none() {
+        return Ok(None);
+    }
+    any_int(value).map(Some)
+}
+
+/// An integer argument as the type `T`, or a `ConfigError` naming `field` with the
+/// `expected` range.
+pub fn int_arg<T: TryFrom<i128>>(value: i128, field: &str, expected: &str) -> PyResult<T> {
+    T::try_from(value).map_err(|_| to_pyerr(CoreError::config(field, shown(value), expected)))
+}
+
+/// An integer as errors show it (a clamped one as beyond the 128-bit range).
+fn shown(value: i128) -> String {
+    match value {
+        i128::MAX => "(an integer of 127 bits or more)".to_owned(),
+        i128::MIN => "(a negative integer of 127 bits or more)".to_owned(),
+        v => v.to_string(),
+    }
+}
+
+/// A `num_threads` argument: `None` keeps the default; one outside 1 to the engine's
+/// maximum is the engine's own `num_threads` error, whatever its size.
+pub fn threads(value: Option<i128>) -> PyResult<Option<usize>> {
+    value
+        .map(|v| {
+            usize::try_from(v)
+                .ok()
+                .filter(|n| rmi_sph::simulation::check_threads(*n).is_ok())
+                .ok_or_else(|| to_pyerr(rmi_sph::simulation::threads_error(shown(v))))
+        })
+        .transpose()
 }
 
 /// The Python error of an engine call that read or wrote `path`: an I/O failure becomes the
@@ -141,6 +176,10 @@ pub fn at_path(e: CoreError, path: &std::path::Path) -> PyErr {
                 let text = std::io::Error::from_raw_os_error(code).to_string();
                 let strerror = text.trim_end_matches(&format!(" (os error {code})")).to_owned();
                 pyo3::exceptions::PyOSError::new_err((code, strerror, path.display().to_string()))
+            }
+            // The engine's own texts may name the path already.
+            None if err.to_string().contains(&*path.to_string_lossy()) => {
+                pyo3::exceptions::PyOSError::new_err(err.to_string())
             }
             None => pyo3::exceptions::PyOSError::new_err(format!("{}: {err}", path.display())),
         },

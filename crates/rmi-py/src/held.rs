@@ -22,6 +22,8 @@ pub trait Stateful: Sized + Send + Sync {
     fn from_bytes(bytes: &[u8], threads: Option<usize>) -> rmi_sph::Result<Self>;
     /// Writes the state to `path` atomically.
     fn save(&self, path: &Path) -> rmi_sph::Result<()>;
+    /// The configuration as JSON (what `set_state` compares).
+    fn config_json(&self) -> String;
     /// A new object continuing from a file written by [`Stateful::save`].
     fn load(path: &Path, threads: Option<usize>) -> rmi_sph::Result<Self>;
 }
@@ -75,9 +77,23 @@ impl<T: Stateful> Held<T> {
         Ok(PyBytes::new(py, &into_py(bytes)?))
     }
 
-    /// Replaces the object with one continuing from `state` (bytes of [`Held::state`]).
+    /// Replaces the object with one continuing from `state` (bytes of [`Held::state`]) of
+    /// the same configuration; a `StateError` naming the first differing field otherwise.
+    /// The state is restored into a new object first, so a failure changes nothing.
     pub fn set_state(&mut self, py: Python<'_>, state: &Bound<'_, PyAny>) -> PyResult<()> {
         let value = from_state::<T>(py, state, self.threads)?;
+        if let Some(own) = self.value.as_ref() {
+            let (mine, theirs) = (own.config_json(), value.config_json());
+            if mine != theirs {
+                let field = differing_field(&mine, &theirs);
+                return Err(StateError::new_err(format!(
+                    "the state is of another config (`{field}` differs from this {}'s); \
+                     use from_state() for a new {} of that config",
+                    T::NAME,
+                    T::NAME
+                )));
+            }
+        }
         self.value = Some(value);
         self.pid = std::process::id();
         Ok(())
@@ -145,6 +161,26 @@ impl<T: Stateful> Held<T> {
         let args = PyTuple::new(py, [state.into_any(), self.threads.into_pyobject(py)?.into_any()])?;
         PyTuple::new(py, [ctor, args.into_any()])
     }
+}
+
+/// The dotted path of the first value that differs between two configs as JSON.
+fn differing_field(a: &str, b: &str) -> String {
+    fn walk(a: &serde_json::Value, b: &serde_json::Value, path: &str) -> Option<String> {
+        use serde_json::Value;
+        let join = |k: &str| if path.is_empty() { k.to_owned() } else { format!("{path}.{k}") };
+        match (a, b) {
+            (Value::Object(x), Value::Object(y)) => x.keys().chain(y.keys()).find_map(|k| match (x.get(k), y.get(k)) {
+                (Some(p), Some(q)) => walk(p, q, &join(k)),
+                _ => Some(join(k)),
+            }),
+            (Value::Array(x), Value::Array(y)) if x.len() == y.len() => {
+                x.iter().zip(y).enumerate().find_map(|(i, (p, q))| walk(p, q, &format!("{path}[{i}]")))
+            }
+            _ => (a != b).then(|| path.to_owned()),
+        }
+    }
+    let parse = |t: &str| serde_json::from_str::<serde_json::Value>(t).unwrap_or(serde_json::Value::Null);
+    walk(&parse(a), &parse(b), "").filter(|p| !p.is_empty()).unwrap_or_else(|| "config".to_owned())
 }
 
 fn state_bytes(state: &Bound<'_, PyAny>) -> PyResult<Vec<u8>> {

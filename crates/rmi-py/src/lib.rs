@@ -99,11 +99,11 @@ fn _raise_error(kind: &str) -> PyResult<()> {
 fn run_trial<'py>(
     py: Python<'py>,
     config: &Bound<'py, PyAny>,
-    num_threads: Option<i64>,
-    record_every: Option<i64>,
+    #[pyo3(from_py_with = errors::any_int_opt)] num_threads: Option<i128>,
+    #[pyo3(from_py_with = errors::any_int_opt)] record_every: Option<i128>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let record_every =
-        record_every.map(|v| errors::unsigned("record_every", v, "an integer in [1, 1000000]")).transpose()?;
+        record_every.map(|v| errors::int_arg(v, "record_every", "an integer in [1, 1000000]")).transpose()?;
     run::run_trial(py, config, errors::threads(num_threads)?, record_every)
 }
 
@@ -141,10 +141,10 @@ fn trial_config<'py>(
     hold_force: f64,
     squeeze_force: f64,
     radius: f64,
-    seed: i64,
+    #[pyo3(from_py_with = errors::any_int)] seed: i128,
     overrides: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    let seed = errors::unsigned("seed", seed, "a non-negative integer")?;
+    let seed = errors::int_arg(seed, "seed", "an integer in [0, 2^64 - 1]")?;
     let cfg = config::trial_config(size_cm, porosity, hold_force, squeeze_force, radius, seed, overrides)?;
     config::to_dict(py, &cfg)
 }

@@ -35,6 +35,9 @@ impl Stateful for Trial {
     fn load(path: &Path, threads: Option<usize>) -> rmi_sph::Result<Self> {
         Trial::load(path, threads)
     }
+    fn config_json(&self) -> String {
+        self.config().to_json()
+    }
 }
 
 /// A grasp-lift-squeeze trial stepped from Python.
@@ -97,7 +100,12 @@ impl PyTrial {
 impl PyTrial {
     #[new]
     #[pyo3(signature = (config, *, num_threads=None, record=false))]
-    fn new(py: Python<'_>, config: &Bound<'_, PyAny>, num_threads: Option<i64>, record: bool) -> PyResult<Self> {
+    fn new(
+        py: Python<'_>,
+        config: &Bound<'_, PyAny>,
+        #[pyo3(from_py_with = crate::errors::any_int_opt)] num_threads: Option<i128>,
+        record: bool,
+    ) -> PyResult<Self> {
         let num_threads = crate::errors::threads(num_threads)?;
         let cfg = config::extract(config)?;
         let trial = py.detach(|| catch(|| Trial::new(cfg, num_threads)));
@@ -116,8 +124,13 @@ impl PyTrial {
     /// SimulationUnstableError
     ///     The step diverged; the state stays at the last good step.
     #[pyo3(signature = (n=1, *, stop_at_finish=false))]
-    fn step(&mut self, py: Python<'_>, n: i64, stop_at_finish: bool) -> PyResult<u64> {
-        let n: u64 = crate::errors::unsigned("n", n, "a non-negative integer (steps)")?;
+    fn step(
+        &mut self,
+        py: Python<'_>,
+        #[pyo3(from_py_with = crate::errors::any_int)] n: i128,
+        stop_at_finish: bool,
+    ) -> PyResult<u64> {
+        let n: u64 = crate::errors::int_arg(n, "n", "a non-negative integer (steps)")?;
         let PyTrial { held, recorder } = self;
         held.step(py, n, |trial| {
             let was_finished = trial.finished();
@@ -292,8 +305,10 @@ impl PyTrial {
         self.held.state(py)
     }
 
-    /// Replaces the whole state (its config included) with one from ``get_state``. Recorded
-    /// rows are dropped. Raises StateError for bytes that are not a state.
+    /// Replaces the whole state with one from ``get_state`` of a trial of the same config.
+    /// Recorded rows are dropped. Raises StateError for bytes that are not a state or a
+    /// state of another config (``Trial.from_state`` makes a trial of any state); the trial
+    /// is unchanged then.
     fn set_state(&mut self, py: Python<'_>, state: &Bound<'_, PyAny>) -> PyResult<()> {
         self.held.set_state(py, state)?;
         if self.recorder.is_some() {
@@ -305,7 +320,11 @@ impl PyTrial {
     /// A trial continuing from ``state`` (bytes of ``get_state``).
     #[staticmethod]
     #[pyo3(signature = (state, num_threads=None))]
-    fn from_state(py: Python<'_>, state: &Bound<'_, PyAny>, num_threads: Option<i64>) -> PyResult<Self> {
+    fn from_state(
+        py: Python<'_>,
+        state: &Bound<'_, PyAny>,
+        #[pyo3(from_py_with = crate::errors::any_int_opt)] num_threads: Option<i128>,
+    ) -> PyResult<Self> {
         let num_threads = crate::errors::threads(num_threads)?;
         Ok(Self::wrap(held::from_state(py, state, num_threads)?, num_threads, false))
     }
@@ -318,7 +337,11 @@ impl PyTrial {
     /// A trial continuing from a state file written by ``save``.
     #[staticmethod]
     #[pyo3(signature = (path, num_threads=None))]
-    fn load(py: Python<'_>, path: PathBuf, num_threads: Option<i64>) -> PyResult<Self> {
+    fn load(
+        py: Python<'_>,
+        path: PathBuf,
+        #[pyo3(from_py_with = crate::errors::any_int_opt)] num_threads: Option<i128>,
+    ) -> PyResult<Self> {
         let num_threads = crate::errors::threads(num_threads)?;
         Ok(Self::wrap(held::load(py, &path, num_threads)?, num_threads, false))
     }

@@ -12,7 +12,7 @@ use crate::observe::{summarise, Observation};
 use nalgebra::Vector3;
 use rmi_sph::config::{check_range, PorousMaterial, Preconditioner, PressureConfig, SimConfig, WallLayer};
 use rmi_sph::contact::{ContactMemory, FrictionParams};
-use rmi_sph::simulation::{write_atomic, Snapshot};
+use rmi_sph::simulation::{read_state, seal, unseal, write_atomic, Snapshot};
 use rmi_sph::{presets, Result, RmiError, Simulation};
 use serde::{Deserialize, Serialize};
 
@@ -22,7 +22,8 @@ use serde::{Deserialize, Serialize};
 pub struct TrialConfig {
     /// Sponge size along x (squeeze axis), y and z (height) (m).
     pub size: [f64; 3],
-    /// Porosity phi (overrides `material.porosity`).
+    /// Porosity phi of the skeleton (-); the source of truth: `material.porosity` is
+    /// validated and then set to it ([`TrialConfig::normalised`]).
     pub porosity: f64,
     /// Holding force before and during the lift (N).
     pub hold_force: f64,
@@ -87,11 +88,21 @@ impl Default for TrialConfig {
 
 impl TrialConfig {
     /// Parses JSON (unknown fields are errors naming the field), then validates.
+    /// Values serde refuses (an integer out of range, an unknown `wall_layer`) are errors
+    /// naming their dotted path. `material.porosity` takes the value of `porosity`.
     pub fn from_json(s: &str) -> Result<Self> {
-        let c: TrialConfig = serde_json::from_str(s)
+        let value: serde_json::Value = serde_json::from_str(s)
             .map_err(|e| RmiError::config("trial", e.to_string(), "valid JSON matching TrialConfig"))?;
+        let c: TrialConfig = rmi_sph::config::from_value_named(&value)?;
         c.validate()?;
-        Ok(c)
+        Ok(c.normalised())
+    }
+
+    /// This config with `material.porosity` set to `porosity`, the value the scene uses (so
+    /// that the config reads as what it simulates).
+    pub fn normalised(mut self) -> Self {
+        self.material.porosity = self.porosity;
+        self
     }
 
     /// JSON text of this config.
@@ -105,6 +116,9 @@ impl TrialConfig {
             check_range(&format!("size[{k}]"), *s, 0.01, 1.0, "m")?;
         }
         check_range("porosity", self.porosity, 0.05, 0.95, "(dimensionless)")?;
+        // Every field of the material under its own name; its porosity is replaced by
+        // `porosity` but must still be a porosity.
+        self.material.validate("material")?;
         check_range("hold_force", self.hold_force, 0.0, FORCE_LIMIT, "N")?;
         check_range("squeeze_force", self.squeeze_force, 0.0, FORCE_LIMIT, "N")?;
         check_range("jitter", self.jitter, 0.0, 0.25, "(fraction of the spacing)")?;
@@ -218,7 +232,10 @@ struct Layer {
     pore_water0: f64,
 }
 
-const MAGIC: &[u8; 8] = b"RMITRIAL";
+/// Header of a trial state; a checksum of header and payload follows the payload.
+const MAGIC: &[u8; 8] = b"RMITRL03";
+/// Header of the states written before the checksum (not readable any more).
+const OLD_MAGIC: &[u8; 8] = b"RMITRIAL";
 
 /// A trial in progress: the robot environment.
 pub struct Trial {
@@ -233,6 +250,7 @@ impl Trial {
     /// Builds the scene and the robot layer; `threads = None` uses the default count.
     pub fn new(cfg: TrialConfig, threads: Option<usize>) -> Result<Self> {
         cfg.validate()?;
+        let cfg = cfg.normalised();
         let sim = Simulation::new(cfg.sim_config(), threads)?;
         Self::around(cfg, sim)
     }
@@ -382,6 +400,11 @@ impl Trial {
     pub fn step(&mut self) -> Result<&Observation> {
         let p = self.cfg.controller.clone();
         let saved_ctrl = self.layer.controller.clone();
+        // The pads' velocities, set before the step: restored with the rest if it diverges.
+        let pads = [self.gripper.left, self.gripper.right].map(|bi| {
+            let s = &self.sim.boundary().bodies[bi].state;
+            (bi, s.velocity, s.angular_velocity)
+        });
         let cmd = self.layer.controller.command(&p, &self.control_input());
         for (bi, v) in self.gripper.velocities(cmd.v_cmd, cmd.lift_speed) {
             self.sim.set_body_velocity(bi, v, Vector3::zeros())?;
@@ -396,6 +419,9 @@ impl Trial {
         let mem = &mut memory;
         if let Err(e) = self.sim.step_with_friction(law.as_ref(), move |stage| *out = mem.apply(stage, bodies, fp)) {
             self.layer.controller = saved_ctrl;
+            for (bi, v, w) in pads {
+                self.sim.set_body_velocity(bi, v, w)?;
+            }
             return Err(e);
         }
         self.layer.memory = memory;
@@ -482,22 +508,35 @@ impl Trial {
 
     /// Serialises the whole state (simulation and robot layer) for a bit-identical
     /// continuation.
+    ///
+    /// Layout: header, bincode payload (config JSON, simulation snapshot, robot layer), then
+    /// a 64-bit checksum of header and payload ([`rmi_sph::simulation::seal`]).
     pub fn to_bytes(&self) -> Vec<u8> {
         let mut out = MAGIC.to_vec();
         let body = (self.cfg.to_json(), self.sim.snapshot().to_bytes(), &self.layer);
         out.extend(bincode::serialize(&body).expect("trial state serialises"));
-        out
+        seal(out)
     }
 
-    /// Restores a state written by [`Trial::to_bytes`] into a new trial.
+    /// Restores a state written by [`Trial::to_bytes`] into a new trial. Every failure is a
+    /// [`RmiError::State`]: a bad header or checksum, or content that does not fit together
+    /// (its config, the snapshot's particles and the robot layer).
     pub fn from_bytes(b: &[u8], threads: Option<usize>) -> Result<Self> {
+        if b.len() >= OLD_MAGIC.len() && &b[..OLD_MAGIC.len()] == OLD_MAGIC {
+            return Err(RmiError::State("trial state of an older format (without checksum); not readable".into()));
+        }
         if b.len() < MAGIC.len() || &b[..MAGIC.len()] != MAGIC {
             return Err(RmiError::State("not an rmi trial state (bad header)".into()));
         }
-        let (json, snap, layer): (String, Vec<u8>, Layer) = bincode::deserialize(&b[MAGIC.len()..])
+        let body = unseal(b, "trial state")?;
+        let (json, snap, layer): (String, Vec<u8>, Layer) = bincode::deserialize(&body[MAGIC.len()..])
             .map_err(|e| RmiError::State(format!("corrupt trial state: {e}")))?;
-        let cfg = TrialConfig::from_json(&json)?;
+        let cfg = TrialConfig::from_json(&json)
+            .map_err(|e| RmiError::State(format!("the trial state's config is not valid: {e}")))?;
         let snap = Snapshot::from_bytes(&snap)?;
+        if snap.config.to_json() != cfg.sim_config().to_json() {
+            return Err(RmiError::State("trial state: the simulation snapshot is not of the trial's config".into()));
+        }
         // The state replaces the scene: build it without the soak.
         let mut t = Trial::around(cfg.clone(), Simulation::build(cfg.sim_config(), threads)?)?;
         if layer.memory.particles() != snap.particles.n_solid() {
@@ -516,7 +555,7 @@ impl Trial {
 
     /// Reads a state file written by [`Trial::save`].
     pub fn load(path: &std::path::Path, threads: Option<usize>) -> Result<Self> {
-        Self::from_bytes(&std::fs::read(path)?, threads)
+        Self::from_bytes(&read_state(path)?, threads)
     }
 }
 

@@ -12,7 +12,7 @@ mod io;
 mod queries;
 mod step;
 
-pub use io::{write_atomic, Snapshot};
+pub use io::{fnv1a64, read_limited, read_state, seal, unseal, write_atomic, Snapshot};
 pub use step::StepStats;
 
 use crate::config::SimConfig;
@@ -86,13 +86,25 @@ pub struct Simulation {
 }
 
 /// Default thread count: `RMI_NUM_THREADS`, else `RAYON_NUM_THREADS`, else the core count.
-pub fn default_threads() -> usize {
-    for var in ["RMI_NUM_THREADS", "RAYON_NUM_THREADS"] {
-        if let Some(n) = std::env::var(var).ok().and_then(|s| s.parse::<usize>().ok()).filter(|&n| n > 0) {
-            return n;
-        }
+///
+/// A set, non-empty `RMI_NUM_THREADS` that is not an integer in 1 to [`MAX_THREADS`] is an
+/// error naming the variable (rather than silently ignored); `RAYON_NUM_THREADS` is rayon's
+/// and keeps rayon's reading (a value that is not a positive integer means the default).
+pub fn default_threads() -> Result<usize> {
+    if let Some(text) = std::env::var_os("RMI_NUM_THREADS").filter(|t| !t.is_empty()) {
+        let text = text.to_string_lossy();
+        return text.trim().parse::<usize>().ok().filter(|n| (1..=MAX_THREADS).contains(n)).ok_or_else(|| {
+            RmiError::config(
+                "RMI_NUM_THREADS",
+                format!("{text:?}"),
+                format!("an integer in [1, {MAX_THREADS}] (worker threads), or unset"),
+            )
+        });
     }
-    std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
+    if let Some(n) = std::env::var("RAYON_NUM_THREADS").ok().and_then(|s| s.parse::<usize>().ok()).filter(|&n| n > 0) {
+        return Ok(n);
+    }
+    Ok(std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1))
 }
 
 impl Simulation {
@@ -107,7 +119,10 @@ impl Simulation {
     /// The scene of `cfg` as sampled, without the soak (for states restored over it).
     pub fn build(cfg: SimConfig, threads: Option<usize>) -> Result<Self> {
         cfg.validate()?;
-        let threads = check_threads(threads.unwrap_or_else(default_threads))?;
+        let threads = check_threads(match threads {
+            Some(n) => n,
+            None => default_threads()?,
+        })?;
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .build()

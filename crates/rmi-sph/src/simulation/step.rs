@@ -54,6 +54,15 @@ fn nonpressure_settings(cfg: &SimConfig) -> NonPressureSettings {
     }
 }
 
+/// Solver memory and fields of the last good step, restored when a step diverges.
+struct Undo {
+    dv_prev: Vec<Vector3<f64>>,
+    response_prev: Vec<Vector3<f64>>,
+    rotation: Vec<nalgebra::UnitQuaternion<f64>>,
+    kappa: Vec<f64>,
+    dens: density::DensityFields,
+}
+
 impl Simulation {
     /// Advances one time step.
     pub fn step(&mut self) -> Result<&StepStats> {
@@ -180,6 +189,15 @@ impl Simulation {
     {
         let t0 = Instant::now();
         let dt = self.cfg.dt;
+        // What the step mutates in place before its divergence guard, so that a diverged
+        // step restores the last good state exactly (a retry then fails the same way).
+        let undo = Undo {
+            dv_prev: self.dv_prev.clone(),
+            response_prev: self.response_prev.clone(),
+            rotation: self.solid.rotation.clone(),
+            kappa: self.kappa.clone(),
+            dens: self.dens.clone(),
+        };
         // 1. Neighbours.
         self.build_neighbours();
         let t1 = Instant::now();
@@ -292,12 +310,10 @@ impl Simulation {
         // merged with the constraint contacts; then the caller's hook (friction).
         let extra = contact::resolve(&self.p, &mut v, &self.nbb, &self.bnd, cfg.particle_radius, dt);
         contacts = contact::merge(contacts, extra);
-        for a in self.contact_active.iter_mut() {
-            *a = false;
-        }
+        let mut contact_active = vec![false; self.contact_active.len()];
         for c in &contacts {
             if c.particle as usize >= nf && c.normal_force > 0.0 {
-                self.contact_active[c.particle as usize - nf] = true;
+                contact_active[c.particle as usize - nf] = true;
             }
         }
         let mut forces: Vec<(Vector3<f64>, Vector3<f64>)> = reactions;
@@ -322,6 +338,11 @@ impl Simulation {
         if !vmax.is_finite() || vmax > cfg.max_velocity {
             self.p.v = v_old;
             self.kappa_dt2 = kappa_dt2_old;
+            self.dv_prev = undo.dv_prev;
+            self.response_prev = undo.response_prev;
+            self.solid.rotation = undo.rotation;
+            self.kappa = undo.kappa;
+            self.dens = undo.dens;
             let reason = if vmax.is_finite() {
                 format!("particle speed {vmax:.3} m/s exceeds max_velocity = {} m/s", cfg.max_velocity)
             } else {
@@ -329,6 +350,7 @@ impl Simulation {
             };
             return Err(RmiError::Unstable { step: self.step, time: self.time, max_velocity: vmax, reason });
         }
+        self.contact_active = contact_active;
         // 11. Advect.
         self.p.x.par_iter_mut().zip(v.par_iter()).for_each(|(x, vi)| *x += dt * vi);
         self.p.v = v;
