@@ -86,7 +86,7 @@ pipeline: setup
 pipeline-tiny:
 	$(MAKE) --no-print-directory pipeline PRESET=tiny
 
-# Physical validation against analytic answers (physics.md sec. 5), recorded for the report.
+# Physical validation against analytic answers (docs/physics.md §5), recorded for the report.
 validation:
 	RMI_VALIDATION_OUT=$(abspath $(OUT))/validation cargo test --release -p rmi-sph --test validation
 

@@ -33,11 +33,11 @@ __all__ = [
 
 __version__: str
 
-#: The 23 values of y_t in the paper's order (same as ``rmi_learn.schema.OBS``).
+#: The 23 values of y_t in the paper's order (same as ``rmi_learn.data.schema.OBS``).
 OBSERVATION_NAMES: Final[tuple[str, ...]]
-#: Recorded extras (same as ``rmi_learn.schema.EXTRAS``).
+#: Recorded extras (same as ``rmi_learn.data.schema.EXTRAS``).
 EXTRA_NAMES: Final[tuple[str, ...]]
-#: Action channels (same as ``rmi_learn.schema.ACTIONS``).
+#: Action channels (same as ``rmi_learn.data.schema.ACTIONS``).
 ACTION_NAMES: Final[tuple[str, ...]]
 #: Hard force limit of the gripper (N): targets are clipped to it, loads above it open.
 FORCE_LIMIT_N: Final[float]
@@ -157,7 +157,7 @@ class Trial:
 @final
 class GruForecaster:
     """Free rollout of a trained AC-GRU-WM or State-GRU-WM in one native call (the
-    ``rmi-wm`` crate); ``rmi_learn.models.gru`` uses it for inference on CPU."""
+    ``rmi-wm`` crate); ``rmi_learn.world_models.gru`` uses it for inference on CPU."""
 
     def __new__(
         cls,

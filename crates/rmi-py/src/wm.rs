@@ -1,5 +1,5 @@
 //! `GruForecaster`: the fused world-model rollout of the `rmi-wm` crate, for
-//! `rmi_learn.models.gru` (numpy `float32` in and out, GIL released while it runs).
+//! `rmi_learn.world_models.gru` (numpy `float32` in and out, GIL released while it runs).
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};

@@ -155,7 +155,7 @@ impl TrialConfig {
         cfg.pressure = self.pressure.clone();
         cfg.wall_layer = self.wall_layer;
         // Over a gripped trial the two-level CG's set-up costs more than it saves (settling and
-        // ramping gain 7-13 %, the lifted phases lose 15-20 %; benches/RESULTS.md), so trials
+        // ramping gain 7-13 %, the lifted phases lose 15-20 %; docs/benchmark-history.md), so trials
         // keep block Jacobi whatever the resolution.
         cfg.cg.preconditioner = Preconditioner::BlockJacobi;
         let block = &mut cfg.scene.porous_blocks[0];

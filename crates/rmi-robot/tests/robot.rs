@@ -203,7 +203,7 @@ fn pad_layer_saturation(t: &Trial) -> f64 {
 /// Friction inside the coupled solve (the default) keeps the pores next to the pads full
 /// while the sponge is gripped; applied after the solve to the skeleton particle alone, it
 /// held the skeleton and let its pore water run along the pads (the layers against them were
-/// down to saturation 0.4 in the study's trials; benches/RESULTS.md).
+/// down to saturation 0.4 in the study's trials; docs/benchmark-history.md).
 #[test]
 fn gripped_sponge_keeps_the_pores_next_to_the_pads_full() {
     let mut out = Vec::new();

@@ -91,7 +91,7 @@ pub struct PorousMaterial {
     /// Compressible skeleton: squeezing closes pores and expels water instead of bulging.
     pub compressible: bool,
     /// Intrinsic (Darcy) permeability in m^2; converted to the SPH drag coefficient with the
-    /// resolution scaling of physics.md sec. 3.1. Zero disables drag.
+    /// resolution scaling of docs/physics.md §3.1. Zero disables drag.
     pub permeability: f64,
     /// Adhesion (capillary) strength alpha in N/m at `adhesion_reference_spacing`.
     pub adhesion: f64,
@@ -241,7 +241,7 @@ pub struct PressureConfig {
     /// SPlisHSPlasH's DFSPH use 0.5). Larger values save iterations in fast flows (dam break:
     /// 3.5 -> 2.2 at 1.0) but the stopping test counts compression only, so a solve that
     /// starts above the answer can stop over-pressured: resting water then does not settle
-    /// (hydrostatic floor load 2.5 % off at 1.0; benches/RESULTS.md).
+    /// (hydrostatic floor load 2.5 % off at 1.0; docs/benchmark-history.md).
     pub warm_start_factor: f64,
     /// Pass the pressure impulse through the implicit operator of the non-pressure solve
     /// (drag, adhesion, viscosity, elasticity) within the step, so that pore water seeps at

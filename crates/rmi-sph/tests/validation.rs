@@ -1,5 +1,5 @@
-//! Physics validated against analytic answers (physics.md sec. 5). Each test prints its
-//! measured error so that `cargo test -- --nocapture` gives the README's table.
+//! Physics validated against analytic answers (docs/physics.md §5). Each test prints its
+//! measured error so that `cargo test -- --nocapture` gives the validation table of docs/engine.md.
 
 mod common;
 use common::*;
@@ -143,7 +143,7 @@ fn darcy_drainage_matches_permeability() {
         &format!("{:.1} % (lattice spread +-20 %)", 100.0 * err),
         err < 0.2,
     );
-    // The drag constant is a lattice average with a +-20 % spread (physics.md sec. 3.1/5.3).
+    // The drag constant is a lattice average with a +-20 % spread (docs/physics.md §3.1 and §5.3).
     assert!(err < 0.2, "Darcy error {err}");
 }
 
@@ -440,7 +440,7 @@ fn retention_material() -> PorousMaterial {
     PorousMaterial { porosity: 0.6, permeability: 3e-8, ..Default::default() }
 }
 
-/// The column a saturated outer surface holds by adhesion, physics.md sec. 3.2:
+/// The column a saturated outer surface holds by adhesion, docs/physics.md §3.2:
 /// h_ret = alpha c_rho (1 - a_f) m2 / (3 V rho_f g), with m2 = 0.225 H^2 and alpha scaled
 /// with the spacing, so that h_ret does not depend on the resolution (m).
 fn retained_height_estimate(m: &PorousMaterial, rho_f: f64, r: f64) -> f64 {
@@ -465,7 +465,7 @@ fn report_drained(r: f64, o: &Drained, h_ret: f64) {
     );
 }
 
-/// Surface retention (physics.md sec. 3.2 and 5.7): a saturated skeleton hung in air
+/// Surface retention (docs/physics.md §3.2 and §5.7): a saturated skeleton hung in air
 /// drains from its bottom face until adhesion holds the rest. The continuum estimate says a
 /// saturated column of h_ret (10.1 cm here) stays above the bottom face, the same at every
 /// resolution because alpha is rescaled with the spacing. Checked: the block settles, keeps
@@ -496,7 +496,7 @@ fn surface_retention_under_gravity() {
             100.0 * out[0].kept,
             100.0 * out[1].kept
         ),
-        &format!("h_ret = {:.1} cm (physics.md 3.2, rough); same at both radii", 100.0 * h_ret),
+        &format!("h_ret = {:.1} cm (docs/physics.md §3.2, rough); same at both radii", 100.0 * h_ret),
         &format!("{:.0} % at most; kept differs by {:.2}", 100.0 * height_err, spread),
         settled && drains && height_err < 0.3 && spread < 0.1,
     );
@@ -507,7 +507,7 @@ fn surface_retention_under_gravity() {
 }
 
 /// The same drainage at r = 4 and 2.5 mm (minutes; `cargo test --release -p rmi-sph --test
-/// validation -- --ignored --nocapture`), for the resolution series in the README.
+/// validation -- --ignored --nocapture`), for the resolution series in docs/engine.md.
 #[test]
 #[ignore]
 fn surface_retention_refined() {
@@ -522,7 +522,7 @@ fn surface_retention_refined() {
 /// The same hung block with the sponges' own skeleton (phi = 0.7, k = 3e-11 m^2): free
 /// drainage is bounded by Darcy's superficial speed q = k rho g / mu through the bottom face,
 /// a few grams in 3 s, at r = 8 and 5 mm alike. (So the water a gripped sponge releases in a
-/// trial is pressed out, not drained; benches/RESULTS.md, stop 30.)
+/// trial is pressed out, not drained; docs/benchmark-history.md.)
 #[test]
 fn hung_sponge_drains_no_faster_than_darcy() {
     let material = PorousMaterial { porosity: 0.7, ..Default::default() };
@@ -641,7 +641,7 @@ fn squeezed_cube_series(r: f64) -> Vec<Squeezed> {
         .collect()
 }
 
-/// Drained squeeze of a saturated sponge (the drained limit of physics.md sec. 5.4): an
+/// Drained squeeze of a saturated sponge (the drained limit of docs/physics.md §5.9): an
 /// 8 cm cube (phi = 0.6, k = 3e-11 m^2, E = 250 kPa) on a floor, pressed by a frictionless
 /// plate by 10 % of its lattice height at 1 cm/s and held 0.5 s; its consolidation time
 /// (L/2)^2 / c_v with c_v = k M / mu is 0.1 s, so the squeeze is drained. The solid volume
@@ -666,7 +666,7 @@ fn squeezed_sponge_releases_its_closed_pore_volume() {
     }
 }
 
-/// The squeezed sponge at r = 4 and 2.5 mm (about 3 minutes), for the README's series.
+/// The squeezed sponge at r = 4 and 2.5 mm (about 3 minutes), for the series in docs/engine.md.
 #[test]
 #[ignore]
 fn squeezed_sponge_refined() {

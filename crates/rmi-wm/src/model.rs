@@ -24,7 +24,7 @@ pub struct Tensor {
     pub data: Vec<f32>,
 }
 
-/// Observation bookkeeping that the weights do not carry (from `rmi_learn.models.common`).
+/// Observation bookkeeping that the weights do not carry (from `rmi_learn.world_models.common`).
 #[derive(Clone, Debug)]
 pub struct Spec {
     /// Per observation channel, 1 if the model's state groups keep it, else 0 (`obs_keep`).

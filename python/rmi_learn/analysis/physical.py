@@ -85,7 +85,7 @@ _SIZE_COLOURS: dict[int, str] = {8: "#1b9e77", 10: "#d95f02", 12: "#7570b3"}
 #: What the paper states about the physical analysis (Sec. V, Sec. VI.A, Figs. 4-6 and
 #: supplement Sec. S4). ``None`` where the paper gives no number.
 PAPER: dict[str, Any] = {
-    "source": "rmi-paper.tex: Sec. V (Experiments), Sec. VI.A, Figs. 4-6, Supp. Sec. S4",
+    "source": "the rmi paper (manuscript): Secs. V and VI.A, Figs. 4-6, Supp. Sec. S4",
     "counts": {
         "runs_total": 594,
         "stable_squeeze": 410,

@@ -1,7 +1,7 @@
 //! Velocity-level non-penetration of particles against the analytic shapes of the bodies.
 //!
 //! A compressible skeleton barely feels Akinci boundary pressure (its density ratio stays
-//! below one at a wall), so skeleton-body contact is resolved here instead (physics.md
+//! below one at a wall), so skeleton-body contact is resolved here instead (docs/physics.md
 //! sec. 3.7). Fluid particles get the same projection only as a safety net against deep
 //! penetration; their normal interaction is the pressure solve.
 

@@ -126,7 +126,7 @@ mod tests {
 
     #[test]
     fn lattice_sum_is_partition_of_unity() {
-        // On a cubic lattice of spacing d = 2r with V = d^3, sum V W ~ 1 (physics.md: 0.99997).
+        // On a cubic lattice of spacing d = 2r with V = d^3, sum V W ~ 1 (docs/physics.md §1: 0.99997).
         let r = 0.01;
         let d = 2.0 * r;
         let k = CubicKernel::new(4.0 * r);

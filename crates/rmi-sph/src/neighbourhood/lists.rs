@@ -340,7 +340,7 @@ unsafe fn emit_avx2(ch: &mut NbChunk, grid: &Grid, kernel: &CubicKernel, xa: &Ve
         // sorted indices hold; the stores stay below base + m + 3, within the reserved capacity.
         unsafe {
             // Four scalar loads per coordinate rather than a gather instruction: measured a
-            // few per cent faster on the Zen 3 machine of benches/RESULTS.md.
+            // few per cent faster on the Zen 3 machine of docs/benchmark-history.md.
             let lanes = |a: &[f64]| {
                 _mm256_set_pd(*a.get_unchecked(s3), *a.get_unchecked(s2), *a.get_unchecked(s1), *a.get_unchecked(s0))
             };

@@ -1,4 +1,4 @@
-//! The step, stage by stage (physics.md sec. 2): neighbours; densities, porosity,
+//! The step, stage by stage (docs/physics.md §2): neighbours; densities, porosity,
 //! saturation and elastic stress; the strongly coupled implicit solve with the skeleton's
 //! contacts as constraints; explicit forces; the pressure solve and the implicit response to
 //! its impulse; the release of sticks that left the friction cone; the safety projection and

@@ -62,7 +62,7 @@ impl<'a> Ctx<'a> {
         &self.objects[self.p.material[a] as usize - 1]
     }
 
-    /// Volume factor `f(a <- b)` of physics.md sec. 1 for dynamic particles a, b.
+    /// Volume factor `f(a <- b)` of docs/physics.md §1 for dynamic particles a, b.
     #[inline]
     pub fn volume_factor(&self, a: usize, b: usize) -> f64 {
         let p = self.p;

@@ -4,7 +4,7 @@ use crate::solver::ctx::Ctx;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-/// Lower clamp of the fluid's local porosity where it divides (physics.md sec. 7.3).
+/// Lower clamp of the fluid's local porosity where it divides (docs/physics.md §6.13).
 pub const MIN_LOCAL_POROSITY: f64 = 0.05;
 
 /// Outputs of the density pass; all indexed by dynamic particle.

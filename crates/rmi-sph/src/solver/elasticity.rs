@@ -1,5 +1,5 @@
 //! Corotated linear SPH elasticity of the skeleton (Peer et al. 2018) with the saturation
-//! softening and bloating terms of the porous method (physics.md sec. 3.5).
+//! softening and bloating terms of the porous method (docs/physics.md §3.5).
 //!
 //! The trace term carries lambda (the probable intent of the method); the flag
 //! `elasticity_reference_trace` reproduces the reference code, where it is missing.

@@ -1,5 +1,5 @@
 //! Porosity-aware pressure solve: relaxed Jacobi IISPH in the DFSPH-factor form of
-//! physics.md sec. 2 step 10, with per-material convergence on the mean compression.
+//! docs/physics.md §2.6, with per-material convergence on the mean compression.
 //!
 //! The unknown is kappa = p / rho (m^2/s^2, "pressure over density"); the pressure
 //! acceleration of a fluid pair is `-V (kappa_a + kappa_b) grad W`. The water-water part of
@@ -68,7 +68,7 @@ struct WaterPairs<'a> {
     grad: &'a [Vector3<f64>],
 }
 
-/// The volume factors of physics.md sec. 1 that the pressure passes need, per particle, so
+/// The volume factors of docs/physics.md §1 that the pressure passes need, per particle, so
 /// that the pair loops read one number instead of walking particle -> object -> material
 /// (the values are those of [`Ctx::volume_factor`], bit for bit).
 struct Factors {

@@ -2,7 +2,7 @@
 //!
 //! Each body is sampled with one layer of Akinci et al. 2012 boundary particles (fluid and
 //! solid see it in densities and the pressure solve) and also keeps its analytic shape, used
-//! for the velocity-level non-penetration of skeleton particles (physics.md sec. 3.7).
+//! for the velocity-level non-penetration of skeleton particles (docs/physics.md §3.7).
 
 use crate::config::{BodyConfig, Shape, WallLayer};
 use crate::neighbourhood::grid::{bounds, Grid};

@@ -105,7 +105,7 @@ pub struct PorousObject {
     pub rest_max: nalgebra::Vector3<f64>,
 }
 
-/// Drag lattice constant c of physics.md sec. 3.1: `sum_s V (u.x)/(|x|^2+eps) grad W ~ -c u/H^2`.
+/// Drag lattice constant c of docs/physics.md §3.1: `sum_s V (u.x)/(|x|^2+eps) grad W ~ -c u/H^2`.
 pub const DRAG_LATTICE_C: f64 = 3.70;
 /// Dimension factor D = 2 (dim + 2) of the Laplacian viscosity/drag forms in 3D.
 pub const LAPLACE_D: f64 = 10.0;

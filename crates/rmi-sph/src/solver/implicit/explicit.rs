@@ -102,7 +102,7 @@ pub fn coupling_forces(c: &Ctx, dens: &DensityFields, v: &[Vector3<f64>]) -> Vec
     (0..c.p.len()).into_par_iter().map(|a| op.pair_forces(a, v) + op.adhesion_position_force(a)).collect()
 }
 
-/// Buoyancy force (N) on each skeleton particle from the pressure `kappa` (physics.md 3.3).
+/// Buoyancy force (N) on each skeleton particle from the pressure `kappa` (docs/physics.md §3.3).
 pub fn buoyancy_forces(c: &Ctx, kappa: &[f64]) -> Vec<Vector3<f64>> {
     let nf = c.p.n_fluid;
     (nf..c.p.len())

@@ -1,4 +1,4 @@
-//! Strongly coupled implicit non-pressure solve (physics.md sec. 2 step 6).
+//! Strongly coupled implicit non-pressure solve (docs/physics.md §2.4).
 //!
 //! One matrix-free preconditioned CG over all dynamic velocities solves
 //! `m v* - dt F_lin(v*) = m v + dt F_exp`, where `F_lin` holds fluid viscosity (Weiler et al.

@@ -19,7 +19,7 @@ use rayon::prelude::*;
 /// microseconds per particle), which pays where block Jacobi needs many iterations: a fine
 /// skeleton (16,000 particles at r = 2.5 mm: 0.76-0.84x the step time) but not the medium
 /// sponge at r = 5 mm (2,000), which drains 17 % slower with it once the pore water rests
-/// (benches/RESULTS.md). Trials set block Jacobi themselves (`TrialConfig::sim_config`).
+/// (docs/benchmark-history.md). Trials set block Jacobi themselves (`TrialConfig::sim_config`).
 pub const TWO_LEVEL_MIN_SOLIDS: usize = 4000;
 
 /// Settings resolved from the config.
