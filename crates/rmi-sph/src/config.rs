@@ -630,7 +630,26 @@ where
     let fails = |candidate: &serde_json::Value| serde_json::from_value::<T>(candidate.clone()).is_err();
     let (field, shown) = locate(&root, &root, value, "", "", &fails)
         .unwrap_or_else(|| ("(config)".to_owned(), "(see expected)".to_owned()));
-    Err(RmiError::config(field, shown, err.to_string()))
+    Err(RmiError::config(field, shown, expected_from_serde(&err.to_string())))
+}
+
+/// What serde says it expected (the part after its last ", expected "), with integer types
+/// written as their ranges so that the message reads like the validator's own.
+fn expected_from_serde(msg: &str) -> String {
+    let Some(at) = msg.rfind("expected ") else { return msg.to_owned() };
+    let wanted = msg[at + "expected ".len()..].trim();
+    let range = |lo: i128, hi: i128| format!("an integer in [{lo}, {hi}]");
+    match wanted {
+        "u8" => range(0, u8::MAX.into()),
+        "u16" => range(0, u16::MAX.into()),
+        "u32" => range(0, u32::MAX.into()),
+        "u64" => range(0, u64::MAX.into()),
+        "usize" => range(0, usize::MAX as i128),
+        "i32" => range(i32::MIN.into(), i32::MAX.into()),
+        "i64" => range(i64::MIN.into(), i64::MAX.into()),
+        "f64" | "f32" => "a number".to_owned(),
+        other => other.to_owned(),
+    }
 }
 
 /// The dotted path (and the value, as text) of the first entry of `given` that alone makes
@@ -688,6 +707,16 @@ fn json_path_hint(e: &serde_json::Error) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn serde_refusals_read_as_ranges() {
+        assert_eq!(
+            expected_from_serde("invalid value: integer `4294967296`, expected u32"),
+            "an integer in [0, 4294967295]"
+        );
+        assert_eq!(expected_from_serde("unknown variant `x`, expected `sunk` or `surface`"), "`sunk` or `surface`");
+        assert_eq!(expected_from_serde("invalid type: string \"a\", expected f64"), "a number");
+    }
 
     #[test]
     fn defaults_validate() {
