@@ -6,6 +6,18 @@
 use crate::error::{Result, RmiError};
 use serde::{Deserialize, Serialize};
 
+mod memory;
+mod named;
+mod validate;
+
+pub use validate::check_range;
+
+pub use memory::{
+    memory_limit, BOUNDARY_PARTICLE_BYTES, FALLBACK_MEMORY_LIMIT, FLUID_PARTICLE_BYTES, POROUS_PARTICLE_BYTES,
+};
+pub use named::from_value_named;
+use named::json_path_hint;
+
 /// How fluid viscosity is applied.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -346,71 +358,7 @@ impl Default for SimConfig {
     }
 }
 
-/// Range check helper: `lo <= v <= hi`, finite.
-fn range(field: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<()> {
-    if v.is_finite() && v >= lo && v <= hi {
-        Ok(())
-    } else {
-        Err(RmiError::config(field, v, format!("a finite value in [{lo}, {hi}] {unit}")))
-    }
-}
-
-/// `lo <= v <= hi` and finite, else an [`RmiError::InvalidConfig`] naming `field`, the range
-/// and `unit`; for the configs of crates built on the engine.
-pub fn check_range(field: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<()> {
-    range(field, v, lo, hi, unit)
-}
-
-/// Open-interval check helper: `lo < v < hi`, finite.
-fn open(field: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<()> {
-    if v.is_finite() && v > lo && v < hi {
-        Ok(())
-    } else {
-        Err(RmiError::config(field, v, format!("a finite value in ({lo}, {hi}) {unit}")))
-    }
-}
-
-fn vec3(field: &str, v: &[f64; 3], lim: f64, unit: &str) -> Result<()> {
-    for (k, c) in v.iter().enumerate() {
-        range(&format!("{field}[{k}]"), *c, -lim, lim, unit)?;
-    }
-    Ok(())
-}
-
-fn aabb(field: &str, min: &[f64; 3], max: &[f64; 3], d: f64) -> Result<()> {
-    vec3(&format!("{field}.min"), min, 1e3, "m")?;
-    vec3(&format!("{field}.max"), max, 1e3, "m")?;
-    for k in 0..3 {
-        if max[k] - min[k] < d {
-            return Err(RmiError::config(
-                format!("{field}.max[{k}]"),
-                max[k],
-                format!("at least min[{k}] + particle spacing = {} m", min[k] + d),
-            ));
-        }
-    }
-    Ok(())
-}
-
 impl PorousMaterial {
-    /// Validates every field; `p` is the dotted path used in error messages.
-    pub fn validate(&self, p: &str) -> Result<()> {
-        open(&format!("{p}.porosity"), self.porosity, 0.0, 1.0, "(dimensionless)")?;
-        range(&format!("{p}.dry_density"), self.dry_density, 1.0, 1e5, "kg/m^3")?;
-        range(&format!("{p}.youngs_modulus"), self.youngs_modulus, 0.0, 1e10, "Pa")?;
-        range(&format!("{p}.poisson_ratio"), self.poisson_ratio, 0.0, 0.49, "(dimensionless)")?;
-        range(&format!("{p}.permeability"), self.permeability, 0.0, 1e-3, "m^2")?;
-        range(&format!("{p}.adhesion"), self.adhesion, 0.0, 1e5, "N/m")?;
-        range(&format!("{p}.adhesion_reference_spacing"), self.adhesion_reference_spacing, 1e-5, 1.0, "m")?;
-        range(&format!("{p}.adhesion_falloff"), self.adhesion_falloff, 0.0, 1.0, "(dimensionless)")?;
-        range(&format!("{p}.softening_shear"), self.softening_shear, -1.0, 10.0, "(dimensionless)")?;
-        range(&format!("{p}.softening_volume"), self.softening_volume, -1.0, 10.0, "(dimensionless)")?;
-        range(&format!("{p}.bloating"), self.bloating, 0.0, 1.0, "(dimensionless)")?;
-        range(&format!("{p}.damping"), self.damping, 0.0, 10.0, "m^2/s")?;
-        range(&format!("{p}.hourglass"), self.hourglass, 0.0, 10.0, "(dimensionless)")?;
-        Ok(())
-    }
-
     /// Lame parameters (mu, lambda) in Pa.
     pub fn lame(&self) -> (f64, f64) {
         let e = self.youngs_modulus;
@@ -444,279 +392,11 @@ impl SimConfig {
     pub fn support(&self) -> f64 {
         4.0 * self.particle_radius
     }
-
-    /// Checks every field; the error names the first offending field, its value and range.
-    pub fn validate(&self) -> Result<()> {
-        range("particle_radius", self.particle_radius, 1e-4, 0.1, "m")?;
-        range("dt", self.dt, 1e-6, 0.01, "s")?;
-        vec3("gravity", &self.gravity, 1e3, "m/s^2")?;
-        let f = &self.fluid;
-        range("fluid.density", f.density, 1.0, 1e5, "kg/m^3")?;
-        range("fluid.viscosity", f.viscosity, 0.0, 100.0, "m^2/s")?;
-        range("fluid.boundary_viscosity", f.boundary_viscosity, 0.0, 100.0, "m^2/s")?;
-        range("fluid.darcy_viscosity", f.darcy_viscosity, 1e-6, 10.0, "Pa s")?;
-        let p = &self.pressure;
-        range("pressure.max_error", p.max_error, 1e-7, 0.1, "(fraction)")?;
-        range("pressure.omega", p.omega, 0.05, 1.0, "(dimensionless)")?;
-        range("pressure.warm_start_factor", p.warm_start_factor, 0.0, 1.0, "(dimensionless)")?;
-        if p.max_iterations == 0 || p.max_iterations > 10_000 {
-            return Err(RmiError::config("pressure.max_iterations", p.max_iterations, "an integer in [1, 10000]"));
-        }
-        if p.min_iterations > p.max_iterations {
-            return Err(RmiError::config(
-                "pressure.min_iterations",
-                p.min_iterations,
-                format!("an integer in [0, pressure.max_iterations = {}]", p.max_iterations),
-            ));
-        }
-        range("cg.tolerance", self.cg.tolerance, 1e-14, 0.1, "(relative residual)")?;
-        if self.cg.max_iterations == 0 || self.cg.max_iterations > 10_000 {
-            return Err(RmiError::config("cg.max_iterations", self.cg.max_iterations, "an integer in [1, 10000]"));
-        }
-        range("cg.coarse_cell", self.cg.coarse_cell, 1.0, 64.0, "particle spacings")?;
-        range("max_velocity", self.max_velocity, 1e-3, 1e4, "m/s")?;
-        if !(1..=3).contains(&self.neighbour_reach) {
-            return Err(RmiError::config("neighbour_reach", self.neighbour_reach, "an integer in [1, 3] (cells)"));
-        }
-        let d = self.spacing();
-        for (i, b) in self.scene.fluid_blocks.iter().enumerate() {
-            let p = format!("scene.fluid_blocks[{i}]");
-            aabb(&p, &b.min, &b.max, d)?;
-            vec3(&format!("{p}.velocity"), &b.velocity, 1e2, "m/s")?;
-        }
-        for (i, b) in self.scene.porous_blocks.iter().enumerate() {
-            let p = format!("scene.porous_blocks[{i}]");
-            aabb(&p, &b.min, &b.max, d)?;
-            b.material.validate(&format!("{p}.material"))?;
-        }
-        range("scene.jitter", self.scene.jitter, 0.0, 0.25, "(fraction of the spacing)")?;
-        range("scene.soak_time", self.scene.soak_time, 0.0, 10.0, "s")?;
-        let mut names = std::collections::HashSet::new();
-        for (i, b) in self.scene.bodies.iter().enumerate() {
-            let p = format!("scene.bodies[{i}]");
-            if b.name.is_empty() || !names.insert(b.name.clone()) {
-                return Err(RmiError::config(
-                    format!("{p}.name"),
-                    format!("{:?}", b.name),
-                    "a non-empty name unique among bodies",
-                ));
-            }
-            vec3(&format!("{p}.position"), &b.position, 1e3, "m")?;
-            vec3(&format!("{p}.rotation"), &b.rotation, 10.0, "rad")?;
-            let he = match &b.shape {
-                Shape::Box { half_extents } | Shape::Container { half_extents } => half_extents,
-            };
-            for (k, h) in he.iter().enumerate() {
-                range(&format!("{p}.shape.half_extents[{k}]"), *h, 0.5 * self.particle_radius, 1e3, "m")?;
-            }
-        }
-        let n = self.estimated_particles();
-        if n > 2e7 {
-            return Err(RmiError::config(
-                "particle_radius",
-                self.particle_radius,
-                format!("a radius giving at most 2e7 particles (this scene would have about {n:.3e})"),
-            ));
-        }
-        self.check_memory(memory_limit())
-    }
-
-    /// Refuses a scene whose [`SimConfig::estimated_bytes`] exceed `limit` (bytes), naming the
-    /// particle radius and the scene, the estimate and the limit.
-    pub fn check_memory(&self, limit: f64) -> Result<()> {
-        let need = self.estimated_bytes();
-        if need <= limit {
-            return Ok(());
-        }
-        let (f, s, b) = self.estimated_counts();
-        Err(RmiError::config(
-            "particle_radius",
-            self.particle_radius,
-            format!(
-                "a radius (or smaller scene.fluid_blocks, scene.porous_blocks, scene.bodies) whose particles fit \
-                 in memory: about {f:.3e} fluid, {s:.3e} porous and {b:.3e} boundary particles need about \
-                 {:.3} GB, more than the {:.3} GB available",
-                need / 1e9,
-                limit / 1e9
-            ),
-        ))
-    }
-
-    /// Rough number of fluid and solid particles the scene will create.
-    pub fn estimated_particles(&self) -> f64 {
-        let (f, s, _) = self.estimated_counts();
-        f + s
-    }
-
-    /// Rough numbers of fluid, porous (skeleton) and boundary particles the scene will create
-    /// (pore water counted as fluid; overestimates rather than under).
-    pub fn estimated_counts(&self) -> (f64, f64, f64) {
-        let d = self.spacing();
-        let d3 = d.powi(3);
-        let vol = |a: &[f64; 3], b: &[f64; 3]| (b[0] - a[0]) * (b[1] - a[1]) * (b[2] - a[2]);
-        let f: f64 = self.scene.fluid_blocks.iter().map(|b| vol(&b.min, &b.max)).sum::<f64>() / d3;
-        let solid: f64 = self.scene.porous_blocks.iter().map(|b| vol(&b.min, &b.max)).sum::<f64>() / d3;
-        let pore: f64 =
-            self.scene.porous_blocks.iter().map(|b| vol(&b.min, &b.max) * b.material.porosity).sum::<f64>() / d3;
-        // One layer on each body's box surface, as `world::boundary` samples it (one spacing
-        // of margin for the sunk layer's placement).
-        let bnd: f64 = self
-            .scene
-            .bodies
-            .iter()
-            .map(|b| {
-                let he = match &b.shape {
-                    Shape::Box { half_extents } | Shape::Container { half_extents } => half_extents,
-                };
-                let n: Vec<f64> = he.iter().map(|h| (2.0 * h / d).round().max(1.0) + 2.0).collect();
-                let inner: f64 = n.iter().map(|k| (k - 2.0).max(0.0)).product();
-                n.iter().product::<f64>() - inner
-            })
-            .sum();
-        (f + pore, solid, bnd)
-    }
-
-    /// Rough memory a simulation of this scene holds (bytes): each estimated particle times
-    /// [`FLUID_PARTICLE_BYTES`], [`POROUS_PARTICLE_BYTES`] or [`BOUNDARY_PARTICLE_BYTES`].
-    pub fn estimated_bytes(&self) -> f64 {
-        let (f, s, b) = self.estimated_counts();
-        f * FLUID_PARTICLE_BYTES + s * POROUS_PARTICLE_BYTES + b * BOUNDARY_PARTICLE_BYTES
-    }
-}
-
-/// Memory per fluid particle (bytes) that [`SimConfig::estimated_bytes`] assumes: particle
-/// data, neighbour lists and solver work arrays (`Simulation::memory_bytes` counts 600 to
-/// 1,300 in water scenes; `tests/reliability.rs` checks the bound), with a margin for the
-/// solvers' temporaries and the allocator.
-pub const FLUID_PARTICLE_BYTES: f64 = 3000.0;
-
-/// Memory per porous skeleton particle (bytes) that [`SimConfig::estimated_bytes`] assumes:
-/// its rest neighbour pairs, rotations and elastic work arrays on top of a fluid particle's
-/// (`Simulation::memory_bytes` counts about 3,500; checked in `tests/reliability.rs`).
-pub const POROUS_PARTICLE_BYTES: f64 = 12_000.0;
-
-/// Memory per boundary particle (bytes) that [`SimConfig::estimated_bytes`] assumes.
-pub const BOUNDARY_PARTICLE_BYTES: f64 = 300.0;
-
-/// Memory limit of [`SimConfig::validate`] where the system does not report its available
-/// memory (bytes).
-pub const FALLBACK_MEMORY_LIMIT: f64 = 8e9;
-
-/// Memory a new simulation may use (bytes): the system's available memory (`MemAvailable`
-/// of `/proc/meminfo` on Linux), else [`FALLBACK_MEMORY_LIMIT`].
-pub fn memory_limit() -> f64 {
-    std::fs::read_to_string("/proc/meminfo")
-        .ok()
-        .and_then(|text| {
-            let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
-            let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-            Some(kib * 1024.0)
-        })
-        .unwrap_or(FALLBACK_MEMORY_LIMIT)
-}
-
-/// Deserialises a config of type `T` from JSON; a value serde refuses (an integer out of
-/// its type's range, an unknown enum name, a wrong type) is an [`RmiError::InvalidConfig`]
-/// naming its dotted path, found by trying each differing value alone on `T`'s default.
-pub fn from_value_named<T>(value: &serde_json::Value) -> Result<T>
-where
-    T: serde::de::DeserializeOwned + Serialize + Default,
-{
-    let err = match serde_json::from_value::<T>(value.clone()) {
-        Ok(cfg) => return Ok(cfg),
-        Err(e) => e,
-    };
-    let root = serde_json::to_value(T::default()).expect("a default config serialises");
-    let fails = |candidate: &serde_json::Value| serde_json::from_value::<T>(candidate.clone()).is_err();
-    let (field, shown) = locate(&root, &root, value, "", "", &fails)
-        .unwrap_or_else(|| ("(config)".to_owned(), "(see expected)".to_owned()));
-    Err(RmiError::config(field, shown, expected_from_serde(&err.to_string())))
-}
-
-/// What serde says it expected (the part after its last ", expected "), with integer types
-/// written as their ranges so that the message reads like the validator's own.
-fn expected_from_serde(msg: &str) -> String {
-    let Some(at) = msg.rfind("expected ") else { return msg.to_owned() };
-    let wanted = msg[at + "expected ".len()..].trim();
-    let range = |lo: i128, hi: i128| format!("an integer in [{lo}, {hi}]");
-    match wanted {
-        "u8" => range(0, u8::MAX.into()),
-        "u16" => range(0, u16::MAX.into()),
-        "u32" => range(0, u32::MAX.into()),
-        "u64" => range(0, u64::MAX.into()),
-        "usize" => range(0, usize::MAX as i128),
-        "i32" => range(i32::MIN.into(), i32::MAX.into()),
-        "i64" => range(i64::MIN.into(), i64::MAX.into()),
-        "f64" | "f32" => "a number".to_owned(),
-        other => other.to_owned(),
-    }
-}
-
-/// The dotted path (and the value, as text) of the first entry of `given` that alone makes
-/// `root` fail `fails`, `default` and `given` being the subtrees at JSON pointer `ptr`.
-fn locate(
-    root: &serde_json::Value,
-    default: &serde_json::Value,
-    given: &serde_json::Value,
-    ptr: &str,
-    dotted: &str,
-    fails: &dyn Fn(&serde_json::Value) -> bool,
-) -> Option<(String, String)> {
-    use serde_json::Value;
-    let entries: Vec<(String, String, Option<&Value>, &Value)> = match (default, given) {
-        (Value::Object(d), Value::Object(g)) => g
-            .iter()
-            .map(|(k, gv)| {
-                let sub = if dotted.is_empty() { k.clone() } else { format!("{dotted}.{k}") };
-                (format!("{ptr}/{}", k.replace('~', "~0").replace('/', "~1")), sub, d.get(k), gv)
-            })
-            .collect(),
-        (Value::Array(d), Value::Array(g)) if d.len() == g.len() => {
-            g.iter().enumerate().map(|(i, gv)| (format!("{ptr}/{i}"), format!("{dotted}[{i}]"), d.get(i), gv)).collect()
-        }
-        _ => return None,
-    };
-    for (p, sub, dv, gv) in entries {
-        let Some(dv) = dv else {
-            // Unknown key: nothing to compare it with.
-            return Some((sub, "(unknown field)".to_owned()));
-        };
-        if dv == gv {
-            continue;
-        }
-        let mut candidate = root.clone();
-        *candidate.pointer_mut(&p)? = gv.clone();
-        if fails(&candidate) {
-            return locate(root, dv, gv, &p, &sub, fails).or_else(|| Some((sub, gv.to_string())));
-        }
-    }
-    None
-}
-
-fn json_path_hint(e: &serde_json::Error) -> String {
-    // serde reports "unknown field `x`" or "invalid type ... for `y`"; surface the field name.
-    let msg = e.to_string();
-    if let Some(start) = msg.find('`') {
-        if let Some(len) = msg[start + 1..].find('`') {
-            return msg[start + 1..start + 1 + len].to_string();
-        }
-    }
-    format!("(line {}, column {})", e.line(), e.column())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn serde_refusals_read_as_ranges() {
-        assert_eq!(
-            expected_from_serde("invalid value: integer `4294967296`, expected u32"),
-            "an integer in [0, 4294967295]"
-        );
-        assert_eq!(expected_from_serde("unknown variant `x`, expected `sunk` or `surface`"), "`sunk` or `surface`");
-        assert_eq!(expected_from_serde("invalid type: string \"a\", expected f64"), "a number");
-    }
 
     #[test]
     fn defaults_validate() {
