@@ -67,6 +67,9 @@ pub struct Simulation {
     nb: NeighbourLists,
     nbb: NeighbourLists,
     pub(crate) dens: DensityFields,
+    /// The density pass's fields of the step before (its output buffer for the next step),
+    /// what a diverged step puts back.
+    dens_last: DensityFields,
     ef: ElasticFields,
     pub(crate) kappa: Vec<f64>,
     pub(crate) kappa_dt2: Vec<f64>,
@@ -149,6 +152,7 @@ impl Simulation {
             nb: NeighbourLists::default(),
             nbb: NeighbourLists::default(),
             dens: DensityFields::default(),
+            dens_last: DensityFields::default(),
             ef: ElasticFields::default(),
             kappa: vec![0.0; n],
             kappa_dt2: vec![0.0; n],
@@ -337,8 +341,10 @@ impl Simulation {
     pub fn memory_bytes(&self) -> usize {
         let n = self.p.len();
         // The last terms: the density pass's water and wall gradient sums and wall flux, the
-        // pressure solve's shifted positions and two 32-byte records (`pairsum`).
-        let per_particle = 24 * 2 + 8 + 2 + 4 + 8 * 6 + 24 * 2 + 24 * 6 + 8 * 4 + (24 * 2 + 8) + (24 + 32 * 2);
+        // pressure solve's shifted positions and two 32-byte records (`pairsum`), and the
+        // density pass's second buffer (the last step's fields, for a rollback).
+        let per_particle =
+            24 * 2 + 8 + 2 + 4 + 8 * 6 + 24 * 2 + 24 * 6 + 8 * 4 + (24 * 2 + 8) + (24 + 32 * 2) + (8 * 6 + 24 * 2);
         // Per rest pair: neighbour index, rest gradient, hourglass constant.
         let solid = self.rest.nbr.len() * (4 + 24 + 8) + self.p.n_solid() * (24 + 8 * 2 + 72 * 3 + 32 + 24 + 16);
         n * per_particle + self.nb.bytes() + self.nbb.bytes() + solid + self.bnd.x.len() * (24 * 3 + 8 + 2)

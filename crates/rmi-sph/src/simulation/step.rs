@@ -60,7 +60,6 @@ struct Undo {
     response_prev: Vec<Vector3<f64>>,
     rotation: Vec<nalgebra::UnitQuaternion<f64>>,
     kappa: Vec<f64>,
-    dens: density::DensityFields,
 }
 
 impl Simulation {
@@ -196,7 +195,6 @@ impl Simulation {
             response_prev: self.response_prev.clone(),
             rotation: self.solid.rotation.clone(),
             kappa: self.kappa.clone(),
-            dens: self.dens.clone(),
         };
         // 1. Neighbours.
         self.build_neighbours();
@@ -204,7 +202,10 @@ impl Simulation {
         let cfg = &self.cfg;
         // Field-wise borrows: later passes mutate other fields of `self` while this lives.
         let ctx = Ctx::new(&self.p, &self.nb, &self.nbb, &self.bnd, &self.objects, &self.rest, &self.kernel, cfg);
-        // 2-5. Densities, alpha, porosity, saturation; rotations and elastic stress.
+        // 2-5. Densities, alpha, porosity, saturation; rotations and elastic stress. The pass
+        // overwrites every value, so it writes into the spare buffer and the last step's
+        // fields stay there for a rollback, without a copy.
+        std::mem::swap(&mut self.dens, &mut self.dens_last);
         density::compute(&ctx, &mut self.dens);
         if self.p.n_solid() > 0 {
             elasticity::rotations(&ctx, &mut self.solid.rotation);
@@ -342,7 +343,7 @@ impl Simulation {
             self.response_prev = undo.response_prev;
             self.solid.rotation = undo.rotation;
             self.kappa = undo.kappa;
-            self.dens = undo.dens;
+            std::mem::swap(&mut self.dens, &mut self.dens_last);
             let reason = if vmax.is_finite() {
                 format!("particle speed {vmax:.3} m/s exceeds max_velocity = {} m/s", cfg.max_velocity)
             } else {
