@@ -46,7 +46,6 @@ from rmi_learn.policies.ranking import (
     WATER,
     CostWeights,
     Planner,
-    PlanResult,
     Scorer,
     Standardiser,
     clip_forces,
@@ -305,19 +304,8 @@ class RealtimePlanner(Planner):
         phys = clip_forces(self.std.u_to_phys(chunks), self.force_limit)
         return phys.view(hist.shape[0], self.k, cfg.horizon, cfg.action_dim)
 
-    def plan(
-        self,
-        hist: Tensor,
-        hist_mask: Tensor,
-        goal_std: Tensor,
-        water_now_std: Tensor,
-        original_std: Tensor | None = None,
-        generator: torch.Generator | None = None,
-    ) -> PlanResult:
-        """:meth:`Planner.plan` in inference mode (same arguments and result)."""
-        with torch.inference_mode():
-            return super().plan(hist, hist_mask, goal_std, water_now_std, original_std,
-                                generator)  # fmt: skip
+    #: :meth:`Planner.plan` in inference mode (same arguments and result).
+    plan = torch.inference_mode()(Planner.plan)
 
     def act(
         self,
