@@ -25,7 +25,6 @@ OPTIONS: dict[str, dict[str, tuple[str, bool]]] = {
         "--out": ('None', True),
         "--max-windows": ('4', False),
         "--threads": ('1', False),
-        "--command": ("'both'", False),
         "--no-progress": ('False', False),
     },
     "control-bench": {

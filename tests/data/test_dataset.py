@@ -35,7 +35,14 @@ from rmi_learn.data.runs import (
     scan_runs,
     write_run,
 )
-from rmi_learn.data.schema import ACTIONS, CONTINUOUS, CONTINUOUS_INDEX, LEARNING_PHASES, OBS
+from rmi_learn.data.schema import (
+    ACTIONS,
+    CONTINUOUS,
+    CONTINUOUS_INDEX,
+    CONTROL_ACTIONS,
+    LEARNING_PHASES,
+    OBS,
+)
 from rmi_learn.data.synthetic import simulate_toy_run
 
 torch = pytest.importorskip("torch")
@@ -272,14 +279,14 @@ def test_window_contents(synthetic_dataset_dir: Path) -> None:
     assert len(ws) > 0 and set(ds.runs.filter(pl.col("split") == "train")["size_cm"]) >= {10}
     item = ws[5]
     assert item["hist"].shape == (16, 23) and item["hist"].dtype == torch.float32
-    assert item["actions"].shape == (64, 2) and item["target"].shape == (64, 18)
+    assert item["actions"].shape == (64, 1) and item["target"].shape == (64, 18)
     assert item["target_r"].dtype == torch.int64 and item["target_c"].shape == (64,)
     assert item["water_now"].shape == ()
     run, t = int(item["run"]), int(item["t"])
     rows = ds.frames.filter(pl.col("run") == run).sort("t")
     assert int(ds.runs.filter(pl.col("run") == run)["size_cm"][0]) == 10
     z = rows.select(CONTINUOUS).to_numpy()
-    u = rows.select(ACTIONS).to_numpy()
+    u = rows.select(CONTROL_ACTIONS).to_numpy()
     # target = standardised z at t+1..t+H; actions = standardised u at t..t+H-1 (compared in
     # standardised units: float32 carries ~1e-7 of a channel's spread).
     zs, us = ds.stats.standardise_z(z), ds.stats.standardise_u(u)
@@ -404,7 +411,7 @@ def test_stats_from_training_split_only(
     np.testing.assert_allclose(ds.stats.z_mean, np.nanmean(z, axis=0), rtol=1e-10)
     std = np.nanstd(z, axis=0)
     np.testing.assert_allclose(ds.stats.z_std, np.where(std > 0, std, 1.0), rtol=1e-10)
-    u = train.select(ACTIONS).to_numpy()
+    u = train.select(CONTROL_ACTIONS).to_numpy()
     np.testing.assert_allclose(ds.stats.u_mean, u.mean(0), rtol=1e-10)
     # By construction: perturb one test-split run and one validation run, rebuild, statistics
     # are identical; perturbing a training run changes them (the check has power).
@@ -437,7 +444,7 @@ def test_stats_roundtrip_numpy_and_torch() -> None:
     z = rng.standard_normal((50, 18)) * 3 + 2
     z[:, 5] = 4.0  # constant channel -> divisor 1
     z[::3, 17] = np.nan
-    st = compute_stats(z, rng.standard_normal((50, 2)))
+    st = compute_stats(z, rng.standard_normal((50, 1)))
     assert st.z_std[5] == 1.0 and math.isfinite(st.z_mean[17])
     x = rng.standard_normal((4, 7, 18))
     np.testing.assert_allclose(st.destandardise_z(st.standardise_z(x)), x)
@@ -445,7 +452,7 @@ def test_stats_roundtrip_numpy_and_torch() -> None:
     back = st.destandardise_z(tx)
     assert isinstance(back, torch.Tensor) and back.dtype == torch.float32
     np.testing.assert_allclose(back.numpy(), st.destandardise_z(x), rtol=1e-5, atol=1e-5)
-    u = torch.zeros(3, 2, dtype=torch.float64)
+    u = torch.zeros(3, 1, dtype=torch.float64)
     np.testing.assert_allclose(st.destandardise_u(u).numpy(), np.tile(st.u_mean, (3, 1)))
     assert Stats.from_json(json.loads(json.dumps(st.to_json()))).z_std.tolist() == st.z_std.tolist()
 

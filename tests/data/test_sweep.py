@@ -140,6 +140,13 @@ def test_presets() -> None:
     import rmi_learn.data.grids as g
 
     assert load_grid(path=Path(g.__file__).parent / "quick.json") == quick
+    # The control grid: the quick grid's points with three seeds, two of them perturbed.
+    control = expand_grid(load_grid("control"))
+    assert len(control) == 3 * len(expand_grid(quick))
+    perturbed = [s for s in control if "perturbation" in s.overrides]
+    assert {s.params["seed"] for s in perturbed} == {1, 2} and len(perturbed) == 2 * 24
+    assert all(s.overrides["perturbation"] == {"enabled": True, "seed": s.params["seed"]}
+               for s in perturbed)  # fmt: skip
 
 
 @pytest.mark.parametrize(

@@ -10,7 +10,7 @@ import pytest
 
 from rmi_learn.data import schema
 from rmi_learn.data.runs import read_run
-from rmi_learn.data.sweep import expand_grid, load_grid, run_sweep
+from rmi_learn.data.sweep import expand_grid, load_grid, run_sweep, validate_grid
 
 
 def test_tiny_preset_runs_with_the_engine_and_resumes(tmp_path: Path) -> None:
@@ -50,3 +50,54 @@ def test_a_grid_the_engine_refuses_fails_before_any_run(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"run size_cm=8/.*`dt` = -1.*no run was started"):
         run_sweep(expand_grid(grid), out, workers=0, progress=False, grid=grid)
     assert not out.exists()
+
+
+def test_perturbed_seeds_follow_their_own_force_targets_from_the_lift_on(tmp_path: Path) -> None:
+    grid = load_grid("tiny")
+    grid = {
+        **grid,
+        "porosities": [0.5],
+        "hold_forces_N": [60],
+        "seeds": [0, 1],
+        "perturbation": {"seeds": [1], "max_force": 150.0},
+    }
+    grid = validate_grid(grid)
+    specs = expand_grid(grid)
+    out = tmp_path / "grid"
+    res = run_sweep(specs, out, workers=2, threads_per_run=1, progress=False, grid=grid)
+    assert res.ok == 2
+    index = pl.read_parquet(out / "index.parquet").sort("seed")
+    assert index["perturbed"].to_list() == [False, True]
+    frames = {s: read_run(out / p)[0] for s, p in zip(index["seed"], index["path"], strict=True)}
+    air = {
+        s: f.filter(pl.col("phase").is_in(["lift", "waiting", "squeeze"]))["F_target"].to_numpy()
+        for s, f in frames.items()
+    }
+    # Scripted: the hold force, then the ramp to the squeeze force. Perturbed: many levels
+    # within [0.8 F_hold, max_force], the recorded actions being those commands.
+    assert abs(air[0][: len(air[0]) // 4] - 60.0).max() < 1e-9
+    assert air[1].min() >= 0.8 * 60 - 1e-9 and air[1].max() <= 150 + 1e-9
+    assert len(set(air[1].round(3))) > 5
+    hold = {
+        s: f.filter(pl.col("phase") == "hold")["F_target"].to_numpy() for s, f in frames.items()
+    }
+    # (a row's value is the last step's command; the first hold row ends the smooth ramp)
+    assert abs(hold[1] - 60.0).max() < 0.01, "the hold on the floor stays scripted"
+    # Resuming with the same grid is a no-op; the physical tables leave the perturbed run out.
+    again = run_sweep(specs, out, workers=0, progress=False, grid=grid)
+    assert again.skipped == 2
+    from rmi_learn.analysis.physical import load_runs
+
+    assert load_runs(out).index["seed"].to_list() == [0]
+
+
+def test_a_perturbation_of_seeds_outside_the_grid_is_refused() -> None:
+    grid = {**load_grid("tiny"), "perturbation": {"seeds": [5]}}
+    with pytest.raises(ValueError, match=r"perturbation.seeds must be .* grid's seeds \[0\]"):
+        validate_grid(grid)
+    grid = {**load_grid("tiny"), "perturbation": {"seeds": [0], "seed": 3}}
+    with pytest.raises(ValueError, match=r"perturbation.seed is set by the sweep"):
+        validate_grid(grid)
+    bad = {**load_grid("tiny"), "perturbation": {"seeds": [0], "ramp_probability": 2}}
+    with pytest.raises(ValueError, match=r"perturbation.ramp_probability"):
+        run_sweep(expand_grid(validate_grid(bad)), "/nonexistent/x", workers=0, progress=False)

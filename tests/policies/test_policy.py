@@ -55,7 +55,7 @@ def test_unet_parameter_count_and_shapes() -> None:
     assert len(films) == 12  # FiLM in every residual block: 6 down, 2 mid, 4 up
     assert sum(isinstance(m, nn.GroupNorm) for m in model.modules()) == 25
     assert any(isinstance(m, nn.Mish) for m in model.modules())
-    x = torch.randn(3, H_PI, 2)
+    x = torch.randn(3, H_PI, 1)
     out = model(
         x,
         torch.tensor([0.0, 10.0, 49.0]),
@@ -63,7 +63,7 @@ def test_unet_parameter_count_and_shapes() -> None:
         torch.ones(3, 16, 23),
         torch.randn(3, 2),
     )
-    assert out.shape == (3, H_PI, 2)
+    assert out.shape == (3, H_PI, 1)
     assert torch.isfinite(out).all()
 
 
@@ -72,7 +72,7 @@ def test_unet_uses_every_conditioning_input() -> None:
     model = PolicyUNet(
         UNetConfig(channels=(16, 32, 64), time_embed_dim=32, gru_hidden=16, goal_hidden=16)
     )
-    x = torch.randn(2, H_PI, 2)
+    x = torch.randn(2, H_PI, 1)
     hist, mask, goal, t = (
         torch.randn(2, 16, 23),
         torch.ones(2, 16, 23),
@@ -156,10 +156,10 @@ def test_min_snr_weight_for_x0_prediction() -> None:
 
 
 def test_ddim_recovers_a_point_mass_with_an_x0_oracle() -> None:
-    target = torch.linspace(-1, 1, H_PI * 2).view(1, H_PI, 2)
+    target = torch.linspace(-1, 1, H_PI).view(1, H_PI, 1)
     oracle = Oracle(lambda x, t: target.expand_as(x))
     obj = DiffusionObjective()
-    noise = torch.randn(4, H_PI, 2, generator=torch.Generator().manual_seed(1))
+    noise = torch.randn(4, H_PI, 1, generator=torch.Generator().manual_seed(1))
     out = obj.sample_from_condition(oracle, torch.zeros(4, 1), noise)  # type: ignore[arg-type]
     assert torch.allclose(out, target.expand(4, -1, -1), atol=1e-5)
     seen = [int(t[0]) for t in oracle.times]
@@ -194,7 +194,7 @@ def test_ddim_follows_the_exact_x0_of_a_gaussian_data_distribution() -> None:
 def test_diffusion_loss_is_min_snr_weighted() -> None:
     torch.manual_seed(0)
     obj = DiffusionObjective()
-    actions = torch.randn(64, H_PI, 2)
+    actions = torch.randn(64, H_PI, 1)
     zero = Oracle(lambda x, t: torch.zeros_like(x))
 
     class Wrapper(nn.Module):
@@ -222,8 +222,8 @@ def test_diffusion_loss_is_min_snr_weighted() -> None:
 
 def test_flow_direction_moves_noise_to_data() -> None:
     # Point-mass data at a: x_t = (1-t) eps + t a, so the exact velocity is (a - x)/(1 - t).
-    a = torch.full((5, H_PI, 2), 3.0)
-    noise = torch.randn(5, H_PI, 2, generator=torch.Generator().manual_seed(0))
+    a = torch.full((5, H_PI, 1), 3.0)
+    noise = torch.randn(5, H_PI, 1, generator=torch.Generator().manual_seed(0))
     assert torch.allclose(interpolate(a, noise, torch.zeros(5)), noise)
     assert torch.allclose(interpolate(a, noise, torch.ones(5)), a)
     out = euler_integrate(lambda x, t: (a - x) / (1 - t).view(-1, 1, 1), noise, 20)
@@ -234,16 +234,16 @@ def test_flow_direction_moves_noise_to_data() -> None:
 
 
 def test_flow_sampler_feeds_t_times_1000_and_the_target_is_a_minus_eps() -> None:
-    a = torch.full((1, H_PI, 2), -1.5)
+    a = torch.full((1, H_PI, 1), -1.5)
     oracle = Oracle(lambda x, t: (a - x) / (1 - t / 1000.0).view(-1, 1, 1))
     obj = FlowObjective()
-    noise = torch.randn(2, H_PI, 2, generator=torch.Generator().manual_seed(0))
+    noise = torch.randn(2, H_PI, 1, generator=torch.Generator().manual_seed(0))
     out = obj.sample_from_condition(oracle, torch.zeros(2, 1), noise)  # type: ignore[arg-type]
     assert torch.allclose(out, a.expand(2, -1, -1), atol=1e-4)
     assert [round(float(t[0])) for t in oracle.times] == [50 * i for i in range(20)]
 
     gen = torch.Generator().manual_seed(7)
-    actions = torch.randn(16, H_PI, 2)
+    actions = torch.randn(16, H_PI, 1)
     t = torch.rand((16,), generator=gen)
     eps = torch.randn(actions.shape, generator=gen)
 

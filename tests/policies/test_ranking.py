@@ -31,15 +31,14 @@ torch.set_num_threads(1)
 STD = Standardiser(
     z_mean=torch.full((18,), 0.5),
     z_std=torch.full((18,), 0.2),
-    u_mean=torch.tensor([150.0, 0.002]),
-    u_std=torch.tensor([100.0, 0.01]),
+    u_mean=torch.tensor([150.0]),
+    u_std=torch.tensor([100.0]),
 )
 
 
 def test_cost_terms_by_hand() -> None:
     f = torch.tensor([[100.0, 110.0, 130.0, 130.0]])  # second differences 10, -20
-    v = torch.tensor([[0.0, 0.001, 0.001, 0.0]])  # second differences -1e-3, -1e-3 m/s
-    u = torch.stack([f, v], dim=-1)
+    u = f.unsqueeze(-1)
     p = torch.zeros(1, 4, 4)
     p[..., 1] = 0.5
     p[..., 2] = 0.3  # slip
@@ -48,25 +47,24 @@ def test_cost_terms_by_hand() -> None:
     assert c["J_M"].item() == pytest.approx(2.1, rel=1e-4)  # grams
     assert c["J_F"].item() == 130.0
     assert c["J_S"].item() == pytest.approx(0.5)
-    assert c["J_U"].item() == pytest.approx(15.0 + 1.0)  # N/step^2 + mm/s/step^2
+    assert c["J_U"].item() == pytest.approx(15.0)  # N/step^2
     w = CostWeights()
-    expect = 2.1 + w.force * 130 + w.slip * 0.5 + w.jerk * 16.0
+    expect = 2.1 + w.force * 130 + w.slip * 0.5 + w.jerk * 15.0
     assert c["J"].item() == pytest.approx(expect, rel=1e-4)
     assert (w.water, w.force, w.slip, w.jerk) == (1.0, 1e-4, 0.05, 0.1)
 
 
 def test_jerk_and_force_clipping() -> None:
-    ramp = torch.stack([torch.linspace(0, 300, 32), torch.linspace(0, 0.01, 32)], dim=-1)
+    ramp = torch.linspace(0, 300, 32).unsqueeze(-1)
     assert jerk(ramp).item() == pytest.approx(0.0, abs=1e-3)
-    u = torch.tensor([[[-20.0, 0.01], [350.0, -0.02], [900.0, 0.0]]])
+    u = torch.tensor([[[-20.0], [350.0], [900.0]]])
     c = clip_forces(u)
     assert c[..., 0].tolist() == [[0.0, 350.0, 400.0]]
-    assert torch.equal(c[..., 1], u[..., 1])
 
 
 def test_standardiser_and_goal_vector() -> None:
-    u = torch.tensor([[250.0, 0.012]])
-    assert torch.allclose(STD.u_to_std(u), torch.tensor([[1.0, 1.0]]))
+    u = torch.tensor([[250.0]])
+    assert torch.allclose(STD.u_to_std(u), torch.tensor([[1.0]]))
     assert torch.allclose(STD.u_to_phys(STD.u_to_std(u)), u)
     g = STD.goal_vector(torch.tensor([0.5]), torch.tensor([1.5]))
     assert g.tolist() == [[0.5, -1.0]]
@@ -94,11 +92,11 @@ def test_planner_selects_the_argmin_in_physical_units(
     planner = Planner(net, objective, _water_scorer, STD, k=8)
     b = 3
     hist, mask = torch.randn(b, 16, 23), torch.ones(b, 16, 23)
-    original_std = torch.randn(b, 32, 2)
+    original_std = torch.randn(b, 32, 1)
     res = planner.plan(hist, mask, torch.zeros(b), torch.ones(b), original_std,
                        torch.Generator().manual_seed(1))  # fmt: skip
-    assert res.samples.shape == (b, 8, 32, 2)
-    assert res.first.shape == res.selected.shape == (b, 32, 2)
+    assert res.samples.shape == (b, 8, 32, 1)
+    assert res.first.shape == res.selected.shape == (b, 32, 1)
     assert res.original is not None
     assert torch.allclose(res.original, STD.u_to_phys(original_std))
     f = res.samples[..., 0]
@@ -191,7 +189,7 @@ def test_train_and_rank_end_to_end(
         assert "| Method |" in text and "Flow matching" in text
     z = np.load(out / "chunks_flow.npz")
     n = int(sum(t3["n_windows"].values()))
-    assert z["original"].shape == z["first"].shape == z["selected"].shape == (n, 32, 2)
+    assert z["original"].shape == z["first"].shape == z["selected"].shape == (n, 32, 1)
     assert z["J_samples"].shape == (n, 8)
     assert np.all(z["selected"][..., 0] <= 400.0) and np.all(z["first"][..., 0] >= 0.0)
     best = z["J_samples"][np.arange(n), z["index"]]

@@ -16,6 +16,7 @@ from rmi_learn.world_models.arx import LinearARX
 from rmi_learn.world_models.common import (
     FORCE,
     GROUP_SETS,
+    N_U,
     STATE_GROUPS,
     WATER,
     ShuffledActions,
@@ -43,7 +44,7 @@ def random_inputs(
     mask = torch.ones(n, L, 23)
     mask[0, :, OBS.index("v_res")] = 0.0
     hist = hist * mask
-    actions = torch.randn(n, h, 2, generator=g)
+    actions = torch.randn(n, h, N_U, generator=g)
     return hist, mask, actions
 
 
@@ -134,7 +135,7 @@ def test_chunks_are_scored_against_one_shared_history(kind: str) -> None:
     assert model.shares_history
     hist, mask, actions = random_inputs()
     b, m = 2, 3
-    chunks = torch.randn(b * m, 32, 2)
+    chunks = torch.randn(b * m, 32, N_U)
     shared = model(hist[:b], mask[:b], chunks)
     repeated = model(hist[:b].repeat_interleave(m, 0), mask[:b].repeat_interleave(m, 0), chunks)
     for key in shared:
@@ -157,7 +158,7 @@ def test_gru_inference_rollouts_match_the_training_loop(kind: str, groups: str) 
             p.normal_(std=0.1)
     hist, mask, _ = random_inputs()
     mask[0, -1, :5] = 0.0  # the first decoder step reads the last observation's mask
-    chunks = torch.randn(2 * 3, 20, 2)
+    chunks = torch.randn(2 * 3, 20, N_U)
 
     def paths() -> dict[str, dict[str, torch.Tensor]]:
         out = {}
@@ -196,7 +197,7 @@ def test_native_gru_rollout_is_used_and_independent_of_threads(
     torch.manual_seed(1)
     model: Any = build({"kind": "ac-gru"}).eval()
     hist, mask, _ = random_inputs()
-    chunks = torch.randn(8, 32, 2)
+    chunks = torch.randn(8, 32, N_U)
     threads = torch.get_num_threads()
     outs = []
     try:
@@ -242,12 +243,12 @@ def test_native_gru_forecaster_rejects_bad_weights_and_inputs() -> None:
     assert fc.action_conditioned
     hist = np.zeros((2, 16, 23), dtype=np.float32)
     with pytest.raises(rmi_sph.ConfigError, match="multiple of the 2 histories"):
-        fc.forecast(hist, hist, np.zeros((3, 32, 2), dtype=np.float32))
+        fc.forecast(hist, hist, np.zeros((3, 32, N_U), dtype=np.float32))
     with pytest.raises(rmi_sph.ConfigError, match="commands per step"):
         fc.forecast(hist, hist, np.zeros((2, 32, 3), dtype=np.float32))
     with pytest.raises(ValueError, match="num_threads"):
-        fc.forecast(hist, hist, np.zeros((2, 32, 2), dtype=np.float32), num_threads=0)
-    z, c, f = fc.forecast(hist, hist, np.zeros((2, 32, 2), dtype=np.float32), num_threads=2)
+        fc.forecast(hist, hist, np.zeros((2, 32, N_U), dtype=np.float32), num_threads=0)
+    z, c, f = fc.forecast(hist, hist, np.zeros((2, 32, N_U), dtype=np.float32), num_threads=2)
     assert z.shape == (2, 32, 18) and c.shape == (2, 32) and f.shape == (2, 32, 4)
 
 
@@ -399,7 +400,7 @@ def test_arx_recovers_a_linear_system_from_complete_windows() -> None:
     n = 400
     hist = torch.randn(n, 4, 23)
     mask = torch.ones(n, 4, 23)
-    actions = torch.randn(n, 5, 2)
+    actions = torch.randn(n, 5, N_U)
     x = arx.features(hist, mask, actions)
     w_true = torch.randn(x.shape[1], 5 * 18) * 0.1
     res = (x @ w_true).view(n, 5, 18)
@@ -729,12 +730,11 @@ class ToyWindows:
         g = np.random.default_rng(seed)
         t_len = hist_len + horizon
         steps = np.arange(t_len)
-        u = np.zeros((n, t_len, 2))
+        u = np.zeros((n, t_len, N_U))
         for i in range(n):
             lv = g.uniform(-1.5, 1.5, size=3)
             cut = np.sort(g.integers(0, t_len, size=2))
             u[i, :, 0] = np.select([steps < cut[0], steps < cut[1]], lv[:2], lv[2])
-        u[:, :, 1] = 0.1 * g.normal(size=(n, t_len))
         force = np.zeros((n, t_len + 1))
         water = np.zeros((n, t_len + 1))
         force[:, 0] = g.normal(size=n)
@@ -815,7 +815,7 @@ def test_gru_inference_stays_in_torch_without_avx2() -> None:
         "assert not rmi_sph.GruForecaster.accelerated()\n"
         "m = build({'kind': 'ac-gru'}).eval()\n"
         "with torch.no_grad():\n"
-        "    out = m(torch.zeros(1, 16, 23), torch.ones(1, 16, 23), torch.zeros(8, 32, 2))\n"
+        "    out = m(torch.zeros(1, 16, 23), torch.ones(1, 16, 23), torch.zeros(8, 32, 1))\n"
         "assert getattr(m, '_native_cache', None) is None\n"
         "assert out['z'].shape == (8, 32, 18)\n"
     )
@@ -842,7 +842,7 @@ def test_one_native_forecaster_serves_several_python_threads() -> None:
         (
             rng.standard_normal((1, 16, 23), dtype=np.float32),
             np.ones((1, 16, 23), dtype=np.float32),
-            rng.standard_normal((8, 32, 2), dtype=np.float32),
+            rng.standard_normal((8, 32, N_U), dtype=np.float32),
         )
         for _ in range(6)
     ]
@@ -863,7 +863,7 @@ def test_gru_model_copies_and_pickles_after_native_inference() -> None:
     torch.manual_seed(3)
     model: Any = build({"kind": "ac-gru"}).eval()
     hist, mask, _ = random_inputs()
-    chunks = torch.randn(4, 32, 2)
+    chunks = torch.randn(4, 32, N_U)
     with torch.no_grad():
         ref = model(hist[:1], mask[:1], chunks)
     assert model._native_cache is not None

@@ -8,6 +8,7 @@
 //! ramps to the squeeze force. The guards on the force limit and the minimum width act in
 //! every phase, also when a caller drives the gripper with its own `u_t = [F_target, v_cmd]`.
 
+use crate::perturbation::SetpointPerturbation;
 use rmi_sph::config::check_range;
 use rmi_sph::{Result, RmiError};
 use serde::{Deserialize, Serialize};
@@ -132,6 +133,8 @@ pub struct ControllerParams {
     pub drop_distance: f64,
     /// Steps without bilateral contact in the air that count as slipping out.
     pub k_lost: u32,
+    /// Seeded force targets from the lift on, instead of the scripted ones (off by default).
+    pub perturbation: SetpointPerturbation,
 }
 
 impl Default for ControllerParams {
@@ -156,6 +159,7 @@ impl Default for ControllerParams {
             squeeze_hold_time: 0.5,
             drop_distance: 0.015,
             k_lost: 20,
+            perturbation: SetpointPerturbation::default(),
         }
     }
 }
@@ -187,7 +191,7 @@ impl ControllerParams {
         if self.k_lost == 0 || self.k_lost > 100_000 {
             return Err(RmiError::config(format!("{p}.k_lost"), self.k_lost, "an integer in [1, 100000]"));
         }
-        Ok(())
+        self.perturbation.validate(&format!("{p}.perturbation"))
     }
 }
 
@@ -306,8 +310,13 @@ impl Controller {
         }
     }
 
-    /// The scripted force target of the current phase at `time` (N).
+    /// The scripted force target of the current phase at `time` (N): from the lift on, the
+    /// perturbed schedule when `p.perturbation` is enabled.
     pub fn scripted_target(&self, p: &ControllerParams, time: f64) -> f64 {
+        let perturbed = matches!(self.phase, Phase::Lift | Phase::Waiting | Phase::Squeeze);
+        if perturbed && p.perturbation.enabled {
+            return p.perturbation.target(self.hold_force, self.squeeze_force, time);
+        }
         let s = |dur: f64| if dur > 0.0 { smoothstep((time - self.phase_start) / dur) } else { 1.0 };
         match self.phase {
             Phase::Settle | Phase::Close => 0.0,

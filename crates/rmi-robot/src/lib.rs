@@ -7,6 +7,7 @@
 //! - [`gripper`]: the two pads (kinematic boxes) and their load read-back;
 //! - [`controller`]: hybrid velocity/force regulation and the trial's phase sequence;
 //! - [`gate`]: the lift stability gate;
+//! - [`perturbation`]: seeded force targets from the lift on, for identifiable data;
 //! - [`observe`]: the interaction state `y_t` and the extras recorded beside it;
 //! - [`trial`]: the simulation, pads, contact memory, controller and gate stepped together
 //!   ([`Trial`]), and the scripted trial run to the end ([`run_trial`]).
@@ -20,6 +21,7 @@ pub mod controller;
 pub mod gate;
 pub mod gripper;
 pub mod observe;
+pub mod perturbation;
 pub mod trial;
 
 pub use trial::{run_trial, Trial, TrialConfig};

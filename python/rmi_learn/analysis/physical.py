@@ -189,8 +189,9 @@ def _run_facts(path: Path) -> tuple[set[str] | None, str | None]:
 def load_runs(runs_dir: str | os.PathLike[str]) -> RunTable:
     """Read the runs of ``runs_dir``: its ``index.parquet`` if present, else the index
     rebuilt from ``runs_dir/runs`` (a sweep directory) or from ``runs_dir`` itself (a bare
-    runs tree). The engine records 0 kg for phases a run never reached, so which phases a
-    run visited is read from each run file's ``phase`` column.
+    runs tree), without the runs that followed perturbed force targets. The engine records
+    0 kg for phases a run never reached, so which phases a run visited is read from each run
+    file's ``phase`` column.
 
     Raises :class:`AnalysisError` when the directory is missing, holds no run or cannot be
     read."""
@@ -213,6 +214,11 @@ def load_runs(runs_dir: str | os.PathLike[str]) -> RunTable:
             f"{root} holds no runs (expected {INDEX_FILE}, {RUNS_SUBDIR}/ or a tree of "
             f"{RUN_FILE} / {ERROR_FILE} files)"
         )
+    # The tables relate water removed to the scripted squeeze force; runs that followed
+    # perturbed force targets from the lift on (data for the world models) have none.
+    index = index.filter(~pl.col("perturbed").fill_null(False))
+    if index.height == 0:
+        raise AnalysisError(f"{root} holds only runs with perturbed force targets")
     reached: dict[str, list[bool | None]] = {ph: [] for ph in ANALYSIS_PHASES}
     sources: list[str | None] = []
     for rel, status in zip(index["path"].to_list(), index["status"].to_list(), strict=True):

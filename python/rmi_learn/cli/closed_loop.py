@@ -2,7 +2,9 @@
 terminal water error (see :mod:`rmi_learn.policies.closed_loop`).
 
 ``rmi closed-loop --runs SWEEP_DIR --chunks RANK_DIR --out DIR [--max-windows 4]
-[--threads 1] [--command both|force]``
+[--threads 1]``
+
+The chunks are force setpoints, executed through the engine's force loop.
 """
 
 from __future__ import annotations
@@ -38,13 +40,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--threads", type=count(1), default=1, metavar="K", help="engine threads (default 1)"
     )
-    parser.add_argument(
-        "--command",
-        choices=("both", "force"),
-        default="both",
-        help="both: send F_target and v_cmd; force: send F_target, the engine regulates the "
-        "closing speed (default both)",
-    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -59,7 +54,6 @@ def run(args: argparse.Namespace) -> int:
         args.out,
         max_windows=args.max_windows,
         threads=args.threads,
-        command=args.command,
         progress=not args.no_progress,
         log=lambda msg: print(msg, file=sys.stderr),
     )

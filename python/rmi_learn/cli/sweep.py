@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from rmi_learn.cli.argtypes import count
+from rmi_learn.data.sweep import PRESETS
 from rmi_learn.errors import InputError
 
 
@@ -13,7 +14,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``rmi sweep``."""
     src = parser.add_mutually_exclusive_group()
     src.add_argument(
-        "--preset", choices=("tiny", "quick", "study", "paper"), help="a built-in grid"
+        "--preset", choices=PRESETS, help="a built-in grid"
     )
     src.add_argument("--grid", metavar="FILE", help="a grid JSON file (same keys as the presets)")
     parser.add_argument("--out", required=True, metavar="DIR", help="output directory")

@@ -28,7 +28,7 @@ from rmi_learn.control.execute import (
     state_fingerprint,
 )
 from rmi_learn.data.runs import atomic_write_bytes, atomic_write_json, json_safe
-from rmi_learn.data.schema import CONTROL_DT, FORCE_LIMIT_N
+from rmi_learn.data.schema import ACTIONS, CONTROL_ACTIONS, CONTROL_DT, FORCE_LIMIT_N
 from rmi_learn.errors import InputError
 
 #: Phases in which the robot acts on the water (anchors are drawn there).
@@ -336,7 +336,7 @@ class Bench:
     def score_at(
         self, planner: Any, hist: Any, mask: Any, u_phys: Any, goal_kg: Any, step: int
     ) -> tuple[dict[str, Any], Any]:
-        """Costs of ``u_phys`` (B, M, H, 2) with the predicted water taken after command
+        """Costs of ``u_phys`` (B, M, H, 1) with the predicted water taken after command
         ``step`` (0-based) instead of the last one; otherwise :meth:`Planner.score`."""
         from rmi_learn.policies.ranking import cost_terms
 
@@ -344,7 +344,7 @@ class Bench:
         if not getattr(planner.scorer, "shares_history", False):
             hist = hist.repeat_interleave(m, dim=0)
             mask = mask.repeat_interleave(m, dim=0)
-        z, _c, p_f = planner.scorer(hist, mask, self.std.u_to_std(u_phys.reshape(b * m, h, 2)))
+        z, _c, p_f = planner.scorer(hist, mask, self.std.u_to_std(u_phys.reshape(b * m, h, -1)))
         water = self.std.water_to_kg(z[:, step, 0]).view(b, m)
         costs = cost_terms(
             water, goal_kg[:, None].expand(b, m), u_phys, p_f.view(b, m, h, -1), planner.weights
@@ -425,18 +425,22 @@ class Bench:
         mask = s.hist_mask.expand(n_goals, -1, -1).contiguous()
         wnow = s.water_now_std.expand(n_goals).contiguous()
         goal_kg_t = self.std.water_to_kg(g_std)
-        recorded_u = torch.as_tensor(tr.actions[c.t : c.t + h], dtype=torch.float32)
+        recorded_u = torch.as_tensor(
+            tr.actions[c.t : c.t + h, [ACTIONS.index(a) for a in CONTROL_ACTIONS]],
+            dtype=torch.float32,
+        )
         for pname in self.policies:
             first_planner = self.planners[(pname, self.default_scorer)]
             gen = torch.Generator().manual_seed(_seed(self.seed, c.run_id, c.t, pname))
             samples = first_planner.sample(
                 hist, mask, self.std.goal_vector(g_std, wnow), gen
-            )  # (G, K, H, 2)
+            )  # (G, K, H, 1)
             exe = [
                 [self._exec(s.state, samples[gi, j, :, 0].double().numpy()) for j in range(self.k)]
                 for gi in range(n_goals)
             ]
-            cand = torch.cat([samples, recorded_u.expand(n_goals, 1, h, 2)], dim=1)
+            recorded = recorded_u.expand(n_goals, 1, h, len(CONTROL_ACTIONS))
+            cand = torch.cat([samples, recorded], dim=1)
             scored = {
                 sn: self.planners[(pname, sn)].score(hist, mask, cand, goal_kg_t)
                 for sn in self.scorer_names

@@ -10,7 +10,7 @@ Processing, in order:
 1. Run selection: only runs whose outcome has ``lift_success`` and ``stable_squeeze``.
 2. Resampling to the global grid ``t_k = k * CONTROL_DT`` (20 ms; ``k`` integer, so every run
    shares the grid), for the grid times inside the recorded span. Continuous channels (the 18
-   entries of z, the two actions, ``time``) are *linearly interpolated* at the grid time
+   entries of z, both recorded commands, ``time``) are *linearly interpolated* at the grid time
    between the two bracketing records (a record that falls on the grid time, within 1e-9 s,
    is taken as is). ``v_res`` is NaN at a grid time unless both bracketing records are
    finite. Categorical channels (``c``, ``r_*``, ``phase``) take the value of the last record
@@ -27,8 +27,8 @@ Processing, in order:
    ``round(0.1 n)`` go to validation and ``round(0.2 n)`` to test (each at least one when
    there are at least three groups), the rest to training (70/10/20 of groups).
 5. Statistics: mean and population standard deviation of the 18 continuous channels (NaN
-   ignored) and the 2 actions over the kept rows of the training runs only. A channel that
-   is constant in training gets a divisor of 1.
+   ignored) and the learned action F_target (``CONTROL_ACTIONS``) over the kept rows of the
+   training runs only. A channel that is constant in training gets a divisor of 1.
 
 Cached form written to ``out_dir``: ``frames.parquet`` (kept rows, raw SI values, with
 ``run``, ``t`` row index within the run, ``k`` grid index, ``segment``), ``runs.parquet``
@@ -62,6 +62,7 @@ from rmi_learn.data.schema import (
     ACTIONS,
     CONTINUOUS,
     CONTINUOUS_INDEX,
+    CONTROL_ACTIONS,
     CONTROL_DT,
     FRICTION_SLICE,
     HISTORY,
@@ -184,8 +185,8 @@ def grouped_split(params: pl.DataFrame, seed: int = 0) -> list[str]:
 @dataclass
 class Stats:
     """Standardisation statistics from the training split: ``z_mean, z_std`` (18,) in the
-    units of CONTINUOUS, ``u_mean, u_std`` (2,) in N and m/s. ``*_std`` is the divisor used
-    (population std, or 1 for a channel constant in training)."""
+    units of CONTINUOUS, ``u_mean, u_std`` (1,) in N (``CONTROL_ACTIONS``: F_target).
+    ``*_std`` is the divisor used (population std, or 1 for a channel constant in training)."""
 
     z_mean: np.ndarray
     z_std: np.ndarray
@@ -213,18 +214,18 @@ class Stats:
         return self._apply(x, self.z_std, self.z_mean, inverse=True)
 
     def standardise_u(self, x: Any) -> Any:
-        """(u - u_mean) / u_std over the last axis (F_target N, v_cmd m/s)."""
+        """(u - u_mean) / u_std over the last axis (F_target, N)."""
         return self._apply(x, self.u_std, self.u_mean, inverse=False)
 
     def destandardise_u(self, x: Any) -> Any:
-        """u * u_std + u_mean over the last axis: back to N and m/s (torch or numpy)."""
+        """u * u_std + u_mean over the last axis: back to N (torch or numpy)."""
         return self._apply(x, self.u_std, self.u_mean, inverse=True)
 
     def to_json(self) -> dict[str, Any]:
         """JSON-ready dict with channel names."""
         return {
             "z_names": list(CONTINUOUS),
-            "u_names": list(ACTIONS),
+            "u_names": list(CONTROL_ACTIONS),
             "z_mean": self.z_mean.tolist(),
             "z_std": self.z_std.tolist(),
             "u_mean": self.u_mean.tolist(),
@@ -234,8 +235,14 @@ class Stats:
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> Stats:
         """Inverse of :meth:`to_json`; refuses statistics of other channel names."""
-        if list(d["z_names"]) != list(CONTINUOUS) or list(d["u_names"]) != list(ACTIONS):
+        if list(d["z_names"]) != list(CONTINUOUS):
             raise ValueError("stats.json channel names differ from rmi_learn.data.schema")
+        if list(d["u_names"]) != list(CONTROL_ACTIONS):
+            raise ValueError(
+                f"stats.json has actions {list(d['u_names'])}, this version learns "
+                f"{list(CONTROL_ACTIONS)} (force setpoints): rebuild the dataset with "
+                "`rmi dataset` and retrain the models on it"
+            )
         return cls(
             *(np.asarray(d[k], dtype=np.float64) for k in ("z_mean", "z_std", "u_mean", "u_std"))
         )
@@ -365,7 +372,7 @@ def build_dataset(
     train = frame.filter(pl.col("run").is_in(train_runs.tolist()))
     stats = compute_stats(
         train.select(CONTINUOUS).to_numpy().astype(np.float64),
-        train.select(ACTIONS).to_numpy().astype(np.float64),
+        train.select(CONTROL_ACTIONS).to_numpy().astype(np.float64),
     )
 
     out.mkdir(parents=True, exist_ok=True)
@@ -447,7 +454,7 @@ class Dataset:
         self.seg_last = ends[seg_idx]
 
         y = f.select(OBS).to_numpy().astype(np.float64)
-        u = f.select(ACTIONS).to_numpy().astype(np.float64)
+        u = f.select(CONTROL_ACTIONS).to_numpy().astype(np.float64)
         mask = np.isfinite(y)
         ys = y.copy()
         ci = list(CONTINUOUS_INDEX)
@@ -455,7 +462,7 @@ class Dataset:
         ys[~mask] = 0.0
         self.y_std = ys.astype(np.float32)  # (N, 23)
         self.y_mask = mask.astype(np.float32)  # (N, 23)
-        self.u_std = self.stats.standardise_u(u).astype(np.float32)  # (N, 2)
+        self.u_std = self.stats.standardise_u(u).astype(np.float32)  # (N, 1)
         self.z_std = self.y_std[:, ci]  # (N, 18)
         self.z_mask = self.y_mask[:, ci]
         self.c = y[:, OBS.index("c")].astype(np.float32)
@@ -501,7 +508,7 @@ class WindowSet(_TorchDataset):  # type: ignore[type-arg]
     ``ws[i]`` and ``ws.batch(indices)`` return dicts of tensors (``batch`` adds a leading N):
     ``hist`` (L, 23) float32: y standardised on continuous channels, c and r_* raw 0/1,
     invalid -> 0; ``hist_mask`` (L, 23) 1 where the raw value was finite; ``actions``
-    (H, 2) standardised u at t..t+H-1; ``target`` (H, 18) standardised z at t+1..t+H,
+    (H, 1) standardised F_target at t..t+H-1; ``target`` (H, 18) standardised z at t+1..t+H,
     invalid -> 0; ``target_mask`` (H, 18); ``target_c`` (H,) 0/1; ``target_r`` (H,) int64
     friction class 0..3 (none, stick, slip, mixed); ``water_now`` () standardised M_L at t;
     ``run`` int64 run number (``run_ids[run]`` names it) and ``t`` int64 row index of the

@@ -31,8 +31,17 @@ CONTINUOUS: tuple[str, ...] = tuple(
 )
 CONTINUOUS_INDEX: tuple[int, ...] = tuple(OBS.index(n) for n in CONTINUOUS)
 
-#: The action u_t = [F_target, v_cmd] (N, m/s; positive v_cmd closes the gripper).
+#: The command recorded each step, u_t = [F_target, v_cmd] (N, m/s; positive v_cmd closes
+#: the gripper): the run files' action columns.
 ACTIONS: tuple[str, ...] = tuple(rmi_sph.ACTION_NAMES)
+
+#: The action the world models are conditioned on and the policies output: the force
+#: setpoint F_target (N), executed by the engine's force loop (``Trial.set_action(F)`` with
+#: no speed). The recorded closing speed v_cmd is that loop's output,
+#: ``clip(k_F (F_target - F_meas))``, a consequence of the setpoint and the measured load
+#: rather than a second command: a chunk of both could ask for a speed the loop would not
+#: produce, and only its setpoints can be executed from a new state.
+CONTROL_ACTIONS: tuple[str, ...] = ("F_target",)
 
 #: Recorded outside y_t, for analysis only (never model inputs): time (s), phase, the
 #: skeleton's centre-of-mass velocity (m/s), the lift gate, expelled water (kg), lift height (m).

@@ -64,7 +64,7 @@ from rmi_learn.data.runs import (
 from rmi_learn.data.schema import FORCE_LIMIT_N, PHASES, SEED_MAX, SPONGE_SIZES_CM
 from rmi_learn.errors import InputError, StageFailure
 
-PRESETS: tuple[str, ...] = ("tiny", "quick", "study", "paper")
+PRESETS: tuple[str, ...] = ("tiny", "quick", "study", "paper", "control")
 RUNS_SUBDIR = "runs"
 INDEX_FILE = "index.parquet"
 GRID_FILE = "grid.json"
@@ -79,6 +79,7 @@ _GRID_KEYS = {
     "seeds",
     "radius_m",
     "overrides",
+    "perturbation",
 }
 
 Runner = Callable[..., Mapping[str, Any]]
@@ -96,7 +97,9 @@ def load_grid(
     file. Keys: ``sizes_cm`` (8, 10, 12), ``porosities`` (0..1), ``hold_forces_N`` and
     ``squeeze_forces_N`` (0 < F <= 400 N), ``seeds`` (ints), ``radius_m`` (particle radius,
     m), optional ``overrides`` (passed to ``make_config`` as keyword arguments, e.g. trial
-    timings), ``name`` and ``description``."""
+    timings), optional ``perturbation`` (``{"seeds": [...], ...}``: the runs of those seeds
+    follow seeded force targets from the lift on, see :func:`perturbation_override`),
+    ``name`` and ``description``."""
     grid, source = read_json_source("rmi_learn.data.grids", PRESETS, preset, path, "grid")
     return validate_grid(grid, source)
 
@@ -146,11 +149,48 @@ def validate_grid(grid: Mapping[str, Any], source: str = "grid") -> dict[str, An
     for s in g["seeds"]:
         if not isinstance(s, int) or not 0 <= s <= SEED_MAX:
             raise ValueError(f"{source}: seeds must be integers in [0, {SEED_MAX}], got {s!r}")
+    perturbation = _validate_perturbation(grid.get("perturbation"), g["seeds"], source)
+    if perturbation is not None:  # absent, not null: grids of earlier sweeps compare equal
+        g["perturbation"] = perturbation
     r = grid["radius_m"]
     if not (isinstance(r, (int, float)) and 0.0 < r < 0.05):
         raise ValueError(f"{source}: radius_m {r!r} outside (0, 0.05) m")
     g["radius_m"] = float(r)
     return g
+
+
+def _validate_perturbation(spec: Any, seeds: list[int], source: str) -> dict[str, Any] | None:
+    """The grid's ``perturbation`` entry: ``seeds`` (a subset of the grid's seeds) and the
+    schedule options of ``controller.perturbation`` (checked by the engine when the configs
+    are built), without ``enabled`` and ``seed``, which the sweep sets per run."""
+    if spec is None:
+        return None
+    if not isinstance(spec, Mapping):
+        raise ValueError(f"{source}: perturbation must be an object, got {json_kind(spec)}")
+    which = spec.get("seeds")
+    if not isinstance(which, list) or not which or not all(s in seeds for s in which):
+        raise ValueError(
+            f"{source}: perturbation.seeds must be a non-empty list of the grid's seeds "
+            f"{seeds}, got {which!r:.80}"
+        )
+    fixed = {"enabled", "seed"} & set(spec)
+    if fixed:
+        raise ValueError(
+            f"{source}: perturbation.{sorted(fixed)[0]} is set by the sweep for each run "
+            "(list the perturbed seeds under perturbation.seeds)"
+        )
+    return {"seeds": list(which), **{k: v for k, v in spec.items() if k != "seeds"}}
+
+
+def perturbation_override(grid: Mapping[str, Any], seed: int) -> dict[str, Any]:
+    """The ``controller.perturbation`` override of the run with ``seed`` (empty when its
+    seed is not perturbed): the schedule is seeded by the run's seed, which the engine mixes
+    with the run's forces, so every perturbed run follows its own schedule."""
+    spec = grid.get("perturbation")
+    if not spec or seed not in spec["seeds"]:
+        return {}
+    options = {k: v for k, v in spec.items() if k != "seeds"}
+    return {"perturbation": {**options, "enabled": True, "seed": int(seed)}}
 
 
 @dataclass(frozen=True)
@@ -181,7 +221,11 @@ def expand_grid(grid: Mapping[str, Any]) -> list[RunSpec]:
                             "F_squeeze": float(fs),
                             "seed": int(seed),
                         }
-                        specs.append(RunSpec(params, grid["radius_m"], dict(grid["overrides"])))
+                        overrides = {
+                            **grid["overrides"],
+                            **perturbation_override(grid, int(seed)),
+                        }
+                        specs.append(RunSpec(params, grid["radius_m"], overrides))
     return specs
 
 
@@ -248,6 +292,34 @@ def _configs_of(specs: list[RunSpec], make_config: Any) -> dict[str, dict[str, A
     return configs
 
 
+#: Trial config fields added after runs were first stored, whose default reproduces what
+#: those runs did (``controller.perturbation`` is off by default): a stored config without
+#: them is compared as if it held the default.
+_LATER_FIELDS: tuple[str, ...] = ("controller.perturbation",)
+
+
+def _get_path(config: Mapping[str, Any], dotted: str) -> Any:
+    value: Any = config
+    for key in dotted.split("."):
+        value = value[key]
+    return value
+
+
+def _set_if_absent(config: dict[str, Any], dotted: str, value: Any) -> dict[str, Any]:
+    """A copy of ``config`` with ``value`` at ``dotted`` when the parent exists and the key
+    does not."""
+    *parents, last = dotted.split(".")
+    out = json.loads(json.dumps(config))
+    node = out
+    for key in parents:
+        if not isinstance(node, dict) or key not in node:
+            return out
+        node = node[key]
+    if isinstance(node, dict) and last not in node:
+        node[last] = json.loads(json.dumps(value))
+    return out
+
+
 def _differences(old: Any, new: Any, path: str = "") -> list[str]:
     """Dotted paths where two JSON values differ, with both values."""
     if isinstance(old, dict) and isinstance(new, dict):
@@ -274,12 +346,18 @@ def check_stale(
     Raises ``ValueError`` naming the number of stale runs, one of them and the fields that
     differ; the caller removes them or sweeps into a new directory.
     """
+    import rmi_sph
+
     stale: list[tuple[str, list[str]]] = []
+    default = rmi_sph.default_config()
+    added = {path: _get_path(default, path) for path in _LATER_FIELDS}
     for spec in specs:
         path = run_path(runs_root, spec.params)
         if not path.exists():
             continue
         stored = read_run_meta(path)["config"]
+        for field_path, value in added.items():
+            stored = _set_if_absent(stored, field_path, value)
         diff = _differences(stored, json.loads(json.dumps(configs[spec.run_id])))
         if diff:
             stale.append((spec.run_id, diff))
@@ -420,6 +498,7 @@ INDEX_SCHEMA: dict[str, Any] = {
     "F_hold": pl.Float64,
     "F_squeeze": pl.Float64,
     "seed": pl.Int64,
+    "perturbed": pl.Boolean,
     "lift_success": pl.Boolean,
     "stable_squeeze": pl.Boolean,
     "failure": pl.String,
@@ -437,7 +516,8 @@ def build_index(out_dir: str | os.PathLike[str], write: bool = True) -> pl.DataF
     run id, and (if ``write``) stored atomically as ``OUT/index.parquet``.
 
     Columns: ``run_id``, ``status`` (ok / unstable / failed), ``error``, ``path`` (relative to
-    OUT), the parameters ``size_cm, porosity, F_hold, F_squeeze, seed``, ``lift_success``,
+    OUT), the parameters ``size_cm, porosity, F_hold, F_squeeze, seed``, ``perturbed`` (the
+    run followed seeded force targets from the lift on), ``lift_success``,
     ``stable_squeeze``, ``failure``, ``initial_water`` and ``final_water`` (kg),
     ``water_removed_<phase>`` (kg, null where the phase was not reached), ``wall_s`` (s, the
     engine's figure if it gives one), ``sweep_wall_s`` (s, measured around the runner),
@@ -451,6 +531,12 @@ def build_index(out_dir: str | os.PathLike[str], write: bool = True) -> pl.DataF
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_bytes(out / INDEX_FILE, lambda f: df.write_parquet(f))
     return df
+
+
+def is_perturbed(config: Mapping[str, Any]) -> bool:
+    """Whether a stored trial config follows seeded force targets from the lift on."""
+    perturbation = config.get("controller", {}).get("perturbation", {})
+    return bool(perturbation.get("enabled", False))
 
 
 def index_frame(root: Path, rel_to: Path) -> pl.DataFrame:
@@ -475,6 +561,7 @@ def index_frame(root: Path, rel_to: Path) -> pl.DataFrame:
                 "error": None,
                 "path": path.relative_to(rel_to).as_posix(),
                 **{k: meta["params"][k] for k in PARAM_KEYS},
+                "perturbed": is_perturbed(meta["config"]),
                 **orow,
                 "n_records": int(stats["n"][0]),
                 "duration_s": float(stats["d"][0]),
@@ -492,6 +579,7 @@ def index_frame(root: Path, rel_to: Path) -> pl.DataFrame:
                 "error": rec.get("error"),
                 "path": epath.relative_to(rel_to).as_posix(),
                 **{k: params[k] for k in PARAM_KEYS},
+                "perturbed": is_perturbed(rec.get("config", {})),
                 "wall_s": rec.get("wall_s"),
             }
         )
@@ -762,9 +850,7 @@ def _run_ray(
     try:
         runs_root, runner, _, _ = args
         remote = ray.remote(num_cpus=threads_per_run, max_retries=1)(compute_run)
-        refs = {
-            remote.remote(s, configs[s.run_id], runner, threads_per_run): s for s in pending
-        }
+        refs = {remote.remote(s, configs[s.run_id], runner, threads_per_run): s for s in pending}
         waiting = list(refs)
         while waiting:
             done, waiting = ray.wait(waiting, num_returns=1)

@@ -24,20 +24,13 @@ Execution. The state at the anchor is saved once per window (``get_state``); eac
 starts from it (``set_state``). Command ``i`` of a chunk (``i`` = 0..31, the action rows
 ``t..t+31`` of the window) is applied with ``set_action`` and held for one control step of
 ``round(0.02 / dt)`` engine steps, so the chunk covers ``[t_k, t_k + 0.64 s)``; ``M_L`` is read
-after the 32nd command, at the time of the goal row ``t + 32``. Forces are clipped to
-[0, FORCE_LIMIT_N] (the gripper's limit, N) and speeds to [-1, 1] m/s (the engine's
-accepted range; its guards then clip the speed to ``[-v_open, v_close]`` and act on the
-force limit and minimum width as always).
-The phase sequence (lift, waiting, squeeze), the lift gate and the grasp-failure checks keep
-running under external commands. Two command modes:
-
-- ``both``: ``set_action(F_target, v_cmd)``; the pads move at the commanded speed for 20 ms
-  (the collected trajectories were driven by the 1 ms force loop, so this is open loop).
-  The engine then does not use F_target at all (it is only recorded): chunks that differ
-  only in their force channel execute identically.
-- ``force``: ``set_action(F_target)``; the engine's force regulation (paper Eq. 5b) runs every
-  engine step toward the commanded target and v_cmd is not used. During the close phase the
-  collected command is F_target = 0 with a closing speed, which this mode cannot express.
+after the 32nd command, at the time of the goal row ``t + 32``. The chunks are force
+setpoints (``schema.CONTROL_ACTIONS``), clipped to [0, FORCE_LIMIT_N] (the gripper's limit,
+N) and sent with ``set_action(F_target)``: the engine's force regulation (paper Eq. 5b) runs
+every engine step toward the setpoint, its guards acting on the force limit and minimum width
+as always. The phase sequence (lift, waiting, squeeze), the lift gate and the grasp-failure
+checks keep running under external commands. During the close phase the collected command is
+F_target = 0 with a closing speed, which a force setpoint cannot express.
 
 Phase timing is not fixed by the window: the lift gate of the hold phase watches the grip
 loads, so a chunk in the hold can open it earlier, later or not at all; grasp failures
@@ -74,7 +67,7 @@ import polars as pl
 from rmi_learn import __version__
 from rmi_learn.data.dataset import resample_run, select_learning_rows
 from rmi_learn.data.runs import atomic_write_bytes, atomic_write_json, json_safe, read_run
-from rmi_learn.data.schema import ACTIONS, CONTROL_DT, FORCE_LIMIT_N, OBS
+from rmi_learn.data.schema import ACTIONS, CONTROL_ACTIONS, CONTROL_DT, FORCE_LIMIT_N, OBS
 from rmi_learn.data.sweep import INDEX_FILE
 from rmi_learn.errors import InputError
 
@@ -83,7 +76,7 @@ OBJECTIVES: tuple[str, ...] = ("diffusion", "flow")
 LABELS = {"diffusion": "Diffusion policy", "flow": "Flow matching"}
 #: Chunks executed per window; ``original`` is shared by the objectives.
 CHUNKS: tuple[str, ...] = ("original", "first", "selected")
-COMMAND_MODES: tuple[str, ...] = ("both", "force")
+COMMAND_MODES: tuple[str, ...] = ("force",)
 WINDOWS_FILE = "closed_loop_windows.parquet"
 TABLE_STEM = "table_closed_loop"
 #: Keys every chunk file must hold (see ``rmi rank``).
@@ -108,7 +101,6 @@ AVERAGED_CHANNELS = frozenset({"F_meas", "F_L", "F_R", "alpha_F"})
 #: absorb that rounding (a different window or run differs by far more).
 _KG_TOL = 1e-5  # kg
 _FORCE_TOL = 1e-3  # N
-_SPEED_TOL = 1e-6  # m/s
 _REL_TOL = 1e-4
 _TIME_TOL = 1e-9  # s, grid time vs record time
 
@@ -193,8 +185,12 @@ def load_chunks(chunks_dir: str | os.PathLike[str]) -> dict[str, dict[str, np.nd
         n = arrays["t"].shape[0]
         for k in ("original", "first", "selected"):
             a = arrays[k]
-            if a.ndim != 3 or a.shape[0] != n or a.shape[2] != len(ACTIONS):
-                raise ClosedLoopError(f"{path}: {k!r} has shape {a.shape}, expected ({n}, H, 2)")
+            nu = len(CONTROL_ACTIONS)
+            if a.ndim != 3 or a.shape[0] != n or a.shape[2] != nu:
+                raise ClosedLoopError(
+                    f"{path}: {k!r} has shape {a.shape}, expected ({n}, H, {nu}) force setpoints"
+                    " (chunk files of earlier versions held [F_target, v_cmd]: rank again)"
+                )
         if not arrays["original"].shape == arrays["first"].shape == arrays["selected"].shape:
             raise ClosedLoopError(f"{path}: original, first and selected differ in shape")
         for k in ("size_cm", "run_id", "goal_kg", "water_now_kg", "index"):
@@ -329,10 +325,8 @@ def check_window(
                 f"M_L = {track.water[t]:.6f} kg at t; the chunk files come from another sweep"
             )
         orig = a["original"][i].astype(np.float64)
-        rec = track.actions[t : t + h]
-        if not (
-            _close(orig[:, 0], rec[:, 0], _FORCE_TOL) and _close(orig[:, 1], rec[:, 1], _SPEED_TOL)
-        ):
+        rec = track.actions[t : t + h, ACTIONS.index("F_target")]
+        if not _close(orig[:, 0], rec, _FORCE_TOL):
             raise ClosedLoopError(
                 f"{src}: the original chunk differs from the run's recorded commands at rows "
                 f"{t}..{t + h - 1}; the chunk files come from another sweep"
@@ -406,9 +400,9 @@ def execute_chunk(
     command: str,
     recorded: np.ndarray | None = None,
 ) -> dict[str, Any]:
-    """Restore ``state`` and apply the commands of ``chunk`` (H, 2) (N, m/s), each held for
-    ``substeps`` engine steps; ``command`` ``both`` sends F_target and v_cmd, ``force`` only
-    F_target (the engine regulates the speed).
+    """Restore ``state`` and apply the force setpoints of ``chunk`` (H, 1) (N), each held for
+    ``substeps`` engine steps; the engine's force loop regulates the closing speed
+    (``command`` ``force``, the only mode).
 
     Returns ``status`` (``ok``, ``unstable``, ``error``, ``invalid_chunk``), ``M_L`` (kg
     after the last command, None unless ok), ``phase`` and ``failure`` at the end, and,
@@ -434,12 +428,8 @@ def execute_chunk(
     sim.take_record()  # starts the load-averaging interval at the anchor
     traj = np.empty((chunk.shape[0], 2))
     try:
-        for i, (f, v) in enumerate(chunk.tolist()):
-            fc, vc = clip_command(f, v)
-            if command == "force":
-                sim.set_action(fc)
-            else:
-                sim.set_action(fc, vc)
+        for i, f in enumerate(chunk[:, 0].tolist()):
+            sim.set_action(clip_command(f, 0.0)[0])
             sim.step(substeps)
             rec = sim.take_record()
             traj[i] = (rec["M_L"], rec["F_meas"])
@@ -706,7 +696,7 @@ def _window_rows(
         axis=1,
     )
     jobs: list[tuple[str | None, str, np.ndarray, int | None, float | None]] = [
-        (None, "original", track.actions[t : t + h], None, None)
+        (None, "original", track.actions[t : t + h, [ACTIONS.index("F_target")]], None, None)
     ]
     for obj, i in window.rows:
         a = chunks[obj]
@@ -787,7 +777,7 @@ def run_closed_loop(
     *,
     max_windows: int = 4,
     threads: int = 1,
-    command: str = "both",
+    command: str = "force",
     progress: bool = True,
     log: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:

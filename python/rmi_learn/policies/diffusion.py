@@ -129,7 +129,7 @@ class DiffusionObjective(ChunkSampler):
         goal: Tensor,
         generator: torch.Generator | None = None,
     ) -> tuple[Tensor, dict[str, Tensor]]:
-        """Min-SNR weighted x0 MSE on a batch of standardised chunks ``actions`` (N, H, 2).
+        """Min-SNR weighted x0 MSE on a batch of standardised chunks ``actions`` (N, H, 1).
 
         Returns the scalar loss and ``{"t": steps (N,), "mse": unweighted per-sample MSE}``
         for per-noise-bucket logging.
@@ -145,7 +145,7 @@ class DiffusionObjective(ChunkSampler):
 
     @torch.no_grad()
     def sample_from_condition(self, model: PolicyUNet, obs_cond: Tensor, noise: Tensor) -> Tensor:
-        """DDIM (eta = 0) from ``noise`` (N, H, 2) given the encoded condition (N, C)."""
+        """DDIM (eta = 0) from ``noise`` (N, H, 1) given the encoded condition (N, C)."""
         x = noise
         n = x.shape[0]
         for t, t_prev in self.pairs:

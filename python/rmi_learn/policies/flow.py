@@ -81,7 +81,7 @@ class FlowObjective(ChunkSampler):
 
     @torch.no_grad()
     def sample_from_condition(self, model: PolicyUNet, obs_cond: Tensor, noise: Tensor) -> Tensor:
-        """Euler-integrate the learned velocity from ``noise`` (N, H, 2) to a chunk."""
+        """Euler-integrate the learned velocity from ``noise`` (N, H, 1) to a chunk."""
 
         def velocity(x: Tensor, t: Tensor) -> Tensor:
             return model.denoise(x, t * self.time_scale, obs_cond)

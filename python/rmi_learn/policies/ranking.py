@@ -15,10 +15,10 @@ with (our concrete definitions; the paper names the terms only):
 - ``J_S`` (-): predicted slip probability, the mean over the horizon of
   ``P(slip) + P(mixed)`` from the friction head (mixed contact contains slipping particles).
 - ``J_U``: action jerk, the mean over the chunk of the absolute second difference of the
-  force command in N per step^2 plus that of the velocity command in mm/s per step^2.
+  force setpoint in N per step^2.
 
 The same cost is computed for the original (collected) chunk, which is never clipped. All
-chunks are returned in physical units (N, m/s) so closed-loop execution can reuse them.
+chunks are returned in physical units (N) so closed-loop execution can reuse them.
 
 :func:`rank` runs the planner over every window of a dataset split (per sponge size; the
 goal g is the collected M_L at t + 32) for each given policy and writes to its output
@@ -30,7 +30,7 @@ directory:
   its mean absolute force change per step (smooth_F), in N.
 - ``tableS1_cost.{md,json}``: combined predicted cost J.
 - ``chunks_<objective>.npz``: per window the run, anchor row, goal, the original, first and
-  selected chunks in physical units (N, m/s), the selected index and every sample's J, for
+  selected chunks in physical units (N), the selected index and every sample's J, for
   closed-loop execution.
 
 All errors are the scorer's own predictions (biased toward the scorer that selected the
@@ -50,7 +50,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from rmi_learn.data.schema import FORCE_LIMIT_N, FRICTION_CLASSES, SPONGE_SIZES_CM
+from rmi_learn.data.schema import CONTROL_ACTIONS, FORCE_LIMIT_N, FRICTION_CLASSES, SPONGE_SIZES_CM
 from rmi_learn.errors import InputError
 from rmi_learn.policies.diffusion import DiffusionObjective
 from rmi_learn.policies.flow import FlowObjective
@@ -59,8 +59,8 @@ from rmi_learn.policies.unet import PolicyUNet
 #: Sponge sizes of the tables (cm) and the tables' names of the objectives.
 SIZES: tuple[int, ...] = SPONGE_SIZES_CM
 LABELS = {"diffusion": "Diffusion policy", "flow": "Flow matching"}
-#: Index of F_target and v_cmd in the action vector, and of M_L in the continuous state.
-FORCE, VEL, WATER = 0, 1, 0
+#: Index of F_target in the action vector, and of M_L in the continuous state.
+FORCE, WATER = CONTROL_ACTIONS.index("F_target"), 0
 #: Friction classes counted as slipping (indices into FRICTION_CLASSES: none/stick/slip/mixed).
 SLIP_CLASSES = (FRICTION_CLASSES.index("slip"), FRICTION_CLASSES.index("mixed"))
 
@@ -80,7 +80,7 @@ class CostWeights:
 
 @dataclass(frozen=True)
 class Standardiser:
-    """Training-split mean/std of the 18 continuous channels and the 2 actions (SI units)."""
+    """Training-split mean/std of the 18 continuous channels and the force setpoint (SI)."""
 
     z_mean: Tensor
     z_std: Tensor
@@ -97,11 +97,11 @@ class Standardiser:
         return cls(t("z_mean"), t("z_std"), t("u_mean"), t("u_std"))
 
     def u_to_phys(self, u: Tensor) -> Tensor:
-        """Standardised actions (..., 2) -> (N, m/s)."""
+        """Standardised actions (..., 1) -> N."""
         return u * self.u_std + self.u_mean
 
     def u_to_std(self, u: Tensor) -> Tensor:
-        """Physical actions (..., 2) in (N, m/s) -> standardised."""
+        """Physical actions (..., 1) in N -> standardised."""
         return (u - self.u_mean) / self.u_std
 
     def water_to_kg(self, w: Tensor) -> Tensor:
@@ -119,15 +119,14 @@ class Standardiser:
 
 
 def clip_forces(u_phys: Tensor, limit: float = FORCE_LIMIT_N) -> Tensor:
-    """Clamp the force command to [0, limit] N; velocity unchanged."""
-    f = u_phys[..., FORCE].clamp(0.0, limit)
-    return torch.stack([f, u_phys[..., VEL]], dim=-1)
+    """Clamp the force setpoints to [0, limit] N."""
+    return u_phys.clamp(0.0, limit)
 
 
 def jerk(u_phys: Tensor) -> Tensor:
-    """Mean |second difference| of force (N/step^2) plus velocity (mm/s/step^2): (...,)."""
+    """Mean |second difference| of the force setpoints (N/step^2): (...,)."""
     d2 = u_phys[..., 2:, :] - 2.0 * u_phys[..., 1:-1, :] + u_phys[..., :-2, :]
-    return d2[..., FORCE].abs().mean(-1) + 1000.0 * d2[..., VEL].abs().mean(-1)
+    return d2[..., FORCE].abs().mean(-1)
 
 
 def cost_terms(
@@ -140,7 +139,7 @@ def cost_terms(
     """Cost terms and J for a batch of chunks.
 
     ``water_terminal_kg`` (...,) predicted M_L after the last command; ``goal_kg`` (...,);
-    ``u_phys`` (..., H, 2) in N and m/s; ``p_fric`` (..., H, 4) friction probabilities.
+    ``u_phys`` (..., H, 1) force setpoints in N; ``p_fric`` (..., H, 4) friction probabilities.
     Returns ``J_M`` (g), ``J_F`` (N), ``J_S`` (-), ``J_U`` and ``J``, each (...,).
     """
     w = weights or CostWeights()
@@ -156,8 +155,8 @@ def cost_terms(
 class PlanResult:
     """Output of :meth:`Planner.plan` for B windows and K samples (physical units).
 
-    ``samples`` (B, K, H, 2) clipped policy chunks; ``first`` = ``samples[:, 0]``;
-    ``selected`` = ``samples[b, index[b]]``; ``original`` (B, H, 2) collected chunk or None;
+    ``samples`` (B, K, H, 1) clipped policy chunks; ``first`` = ``samples[:, 0]``;
+    ``selected`` = ``samples[b, index[b]]``; ``original`` (B, H, 1) collected chunk or None;
     ``costs[name]`` (B, K) per sample; ``original_costs[name]`` (B,) or empty;
     ``pred_water_kg`` (B, K) predicted terminal M_L; ``goal_kg`` (B,).
     """
@@ -172,12 +171,12 @@ class PlanResult:
 
     @property
     def first(self) -> Tensor:
-        """First policy sample per window (B, H, 2), N and m/s."""
+        """First policy sample per window (B, H, 1), N."""
         return self.samples[:, 0]
 
     @property
     def selected(self) -> Tensor:
-        """Selected (argmin J) sample per window (B, H, 2), N and m/s."""
+        """Selected (argmin J) sample per window (B, H, 1), N."""
         b = torch.arange(self.samples.shape[0])
         return self.samples[b, self.index]
 
@@ -224,7 +223,7 @@ class Planner:
         goal: Tensor,
         generator: torch.Generator | None = None,
     ) -> Tensor:
-        """K clipped physical chunks per window: (B, K, H, 2), one batched sampling pass."""
+        """K clipped physical chunks per window: (B, K, H, 1), one batched sampling pass."""
         b = hist.shape[0]
         cfg = self.policy.config
         obs_cond = self.policy.encode_condition(hist, hist_mask, goal)
@@ -239,7 +238,7 @@ class Planner:
     def score(
         self, hist: Tensor, hist_mask: Tensor, u_phys: Tensor, goal_kg: Tensor
     ) -> tuple[dict[str, Tensor], Tensor]:
-        """Costs of physical chunks ``u_phys`` (B, M, H, 2) for B windows: ((B, M) each, M_L kg).
+        """Costs of physical chunks ``u_phys`` (B, M, H, 1) for B windows: ((B, M) each, M_L kg).
 
         One batched world-model call over B * M rollouts.
         """
@@ -247,7 +246,7 @@ class Planner:
         if not getattr(self.scorer, "shares_history", False):
             hist = hist.repeat_interleave(m, dim=0)
             hist_mask = hist_mask.repeat_interleave(m, dim=0)
-        z, _p_c, p_f = self.scorer(hist, hist_mask, self.std.u_to_std(u_phys.reshape(b * m, h, 2)))
+        z, _p_c, p_f = self.scorer(hist, hist_mask, self.std.u_to_std(u_phys.reshape(b * m, h, -1)))
         water = self.std.water_to_kg(z[:, h - 1, WATER]).view(b, m)
         costs = cost_terms(
             water, goal_kg[:, None].expand(b, m), u_phys, p_f.view(b, m, h, -1), self.weights
@@ -268,7 +267,7 @@ class Planner:
 
         ``hist``/``hist_mask`` (B, L, 23) as in the dataset windows; ``goal_std`` (B,) the
         standardised goal g (terminal M_L); ``water_now_std`` (B,) standardised M_L(t);
-        ``original_std`` (B, H, 2) standardised collected chunk to score alongside (optional).
+        ``original_std`` (B, H, 1) standardised collected chunk to score alongside (optional).
         """
         goal = self.std.goal_vector(goal_std, water_now_std)
         samples = self.sample(hist, hist_mask, goal, generator)
@@ -421,9 +420,7 @@ def rank(
             )
             idx = np.arange(len(ws))
             if max_windows and len(ws) > max_windows:
-                idx = np.unique(np.linspace(0, len(ws) - 1, max_windows).round()).astype(
-                    np.int64
-                )
+                idx = np.unique(np.linspace(0, len(ws) - 1, max_windows).round()).astype(np.int64)
             n_windows[size] = int(idx.size)
             gen = torch.Generator().manual_seed(seed * 1000 + size)
             acc: dict[str, list[np.ndarray]] = {}

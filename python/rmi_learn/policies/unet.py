@@ -27,7 +27,7 @@ from torch import Tensor, nn
 class UNetConfig:
     """Hyper-parameters of :class:`PolicyUNet` (defaults are the paper's)."""
 
-    action_dim: int = 2
+    action_dim: int = 1  # schema.CONTROL_ACTIONS: the force setpoint
     horizon: int = 32
     obs_dim: int = 23
     channels: tuple[int, ...] = (64, 128, 256)

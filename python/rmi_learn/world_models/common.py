@@ -34,6 +34,7 @@ from rmi_learn.data.schema import (
     CONTACT_INDEX,
     CONTINUOUS,
     CONTINUOUS_INDEX,
+    CONTROL_ACTIONS,
     FRICTION_CLASSES,
     FRICTION_SLICE,
     OBS,
@@ -41,7 +42,7 @@ from rmi_learn.data.schema import (
 
 N_OBS = len(OBS)  # 23
 N_Z = len(CONTINUOUS)  # 18
-N_U = 2
+N_U = len(CONTROL_ACTIONS)  # 1: the force setpoint
 N_FRIC = len(FRICTION_CLASSES)  # 4
 #: Index of retained water M_L and measured force F_meas within z (the 18 continuous entries).
 WATER = CONTINUOUS.index("M_L")
