@@ -99,6 +99,20 @@ def test_baseline_carries_latest_state() -> None:
     assert (p["p_contact"] > 0.99).all()
 
 
+def test_setpoint_readout_reads_the_force_off_the_chunk() -> None:
+    # F_meas(t + tau) = F_target(t + tau - 1) in newtons; every other channel persists.
+    model = build({"kind": "setpoint-readout", "u_mean": 150.0, "u_std": 100.0,
+                   "f_mean": 120.0, "f_std": 80.0})  # fmt: skip
+    hist, mask, actions = random_inputs()
+    z = model.predict(hist, mask, actions)["z"]
+    setpoint_n = actions[..., 0] * 100.0 + 150.0
+    assert torch.allclose(z[..., FORCE] * 80.0 + 120.0, setpoint_n, atol=1e-4)
+    persisted = build({"kind": "baseline"}).predict(hist, mask, actions)["z"]
+    others = [i for i in range(18) if i != FORCE]
+    assert torch.equal(z[..., others], persisted[..., others])
+    assert build(model.config()).scale == model.scale
+
+
 @pytest.mark.parametrize("kind", ["ac-gru", "transformer"])
 def test_causal_in_actions(kind: str) -> None:
     """Step tau (0-based) of the forecast depends on u_t..u_{t+tau} only."""
@@ -536,15 +550,19 @@ def test_cli_debug_train_eval_and_load(synthetic_dataset_dir: Path, tmp_path: Pa
     rows = t2["horizons"]["0.64 s"]
     assert [r["method"] for r in rows] == [
         "Baseline",
+        "Setpoint readout",
         "State-GRU-WM",
         "AC-GRU-WM",
         "AC-GRU-WM, shuffled A",
         "Transformer W_T",
     ]
-    for r in rows[:4]:
+    # The readout is persistence except for the force: the same water error.
+    for s in ("8cm", "10cm", "12cm"):
+        assert rows[1][s]["water (g)"] == rows[0][s]["water (g)"]
+    for r in rows[:5]:
         for s in ("8cm", "10cm", "12cm"):
             assert np.isfinite(r[s]["water (g)"]) and np.isfinite(r[s]["force (N)"]), (r, s)
-    assert rows[4]["10cm"]["water (g)"] is not None and rows[4]["8cm"]["water (g)"] is None
+    assert rows[5]["10cm"]["water (g)"] is not None and rows[5]["8cm"]["water (g)"] is None
     assert set(t2["horizons"]) == {"0.16 s", "0.32 s", "0.64 s", "1.28 s"}
     t3 = json.loads((out / "table3.json").read_text())["horizons"]["0.64 s"]
     assert [r["method"] for r in t3] == [

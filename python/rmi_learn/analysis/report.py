@@ -361,6 +361,7 @@ def _section_world_models(doc: Doc, out: Path, figs: Path, paper: dict[str, Any]
     # Table I: the predictors, with our parameter counts and latency.
     roles = {
         "baseline": ("causal", "the latest state through the rollout"),
+        "setpoint-readout": ("causal", "the baseline with F_meas read off the setpoints"),
         "state-gru": ("causal", "same GRU as AC-GRU-WM, no command"),
         "ac-gru": ("causal", "proposed world model, one command per step"),
         "transformer": ("causal", "W_T, the scorer of the policy samples"),

@@ -17,14 +17,13 @@ from pathlib import Path
 
 from rmi_learn.cli.argtypes import count
 from rmi_learn.errors import InputError
+from rmi_learn.pipeline.config import PRESETS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``rmi pipeline``."""
     src = parser.add_mutually_exclusive_group(required=True)
-    src.add_argument(
-        "--preset", choices=("tiny", "quick", "study", "paper"), help="a built-in pipeline"
-    )
+    src.add_argument("--preset", choices=PRESETS, help="a built-in pipeline")
     src.add_argument("--config", type=Path, metavar="FILE", help="a pipeline JSON file")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory")
     parser.add_argument(

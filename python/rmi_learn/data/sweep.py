@@ -309,8 +309,8 @@ def _set_if_absent(config: dict[str, Any], dotted: str, value: Any) -> dict[str,
     """A copy of ``config`` with ``value`` at ``dotted`` when the parent exists and the key
     does not."""
     *parents, last = dotted.split(".")
-    out = json.loads(json.dumps(config))
-    node = out
+    out: dict[str, Any] = json.loads(json.dumps(config))
+    node: Any = out
     for key in parents:
         if not isinstance(node, dict) or key not in node:
             return out

@@ -17,7 +17,7 @@ from typing import Any
 
 from rmi_learn.data.runs import read_json_source
 
-PRESETS: tuple[str, ...] = ("tiny", "quick", "study", "paper")
+PRESETS: tuple[str, ...] = ("tiny", "quick", "study", "paper", "control")
 
 
 def _checked(parse: Callable[[str], Any] | None = None, kind: type | tuple[type, ...] = int) -> Any:

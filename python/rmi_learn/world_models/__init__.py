@@ -1,5 +1,6 @@
-"""World models of the paper (Sec. IV): Baseline, State-GRU-WM, AC-GRU-WM, Linear-ARX,
-AC-MLP-WM and the causal Transformer W_T, with one interface (see :mod:`.common`).
+"""World models of the paper (Sec. IV): Baseline (and the setpoint readout), State-GRU-WM,
+AC-GRU-WM, Linear-ARX, AC-MLP-WM and the causal Transformer W_T, with one interface (see
+:mod:`.common`).
 
 ``build(config)`` makes a model from its JSON config; ``load(out_dir)`` rebuilds a trained
 model from a run directory written by ``rmi train-wm`` (``config.json`` +
@@ -14,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from rmi_learn.world_models.arx import LinearARX
-    from rmi_learn.world_models.baseline import BaselineWM
+    from rmi_learn.world_models.baseline import BaselineWM, SetpointReadoutWM
     from rmi_learn.world_models.common import WorldModel, wm_loss
     from rmi_learn.world_models.gru import ACGRUWM, StateGRUWM
     from rmi_learn.world_models.mlp import ACMLPWM
@@ -26,6 +27,7 @@ if TYPE_CHECKING:
 _SOURCES = {
     "LinearARX": "arx",
     "BaselineWM": "baseline",
+    "SetpointReadoutWM": "baseline",
     "WorldModel": "common",
     "wm_loss": "common",
     "ACGRUWM": "gru",
@@ -45,6 +47,7 @@ __all__ = [
     "MODELS",
     "BaselineWM",
     "LinearARX",
+    "SetpointReadoutWM",
     "StateGRUWM",
     "TransformerWM",
     "WorldModel",

@@ -249,6 +249,7 @@ TABLE4_METRICS = (("water (g)", "water_mae_g"),)
 
 TABLE2_ROWS: tuple[tuple[str, dict[str, Any]], ...] = (
     ("Baseline", {"kind": "baseline"}),
+    ("Setpoint readout", {"kind": "setpoint-readout"}),
     ("State-GRU-WM", {"kind": "state-gru", "state_groups": "ALL", "shuffled": False}),
     ("AC-GRU-WM", {"kind": "ac-gru", "state_groups": "ALL", "shuffled": False}),
     ("AC-GRU-WM, shuffled A", {"kind": "ac-gru", "state_groups": "ALL", "shuffled": True}),
@@ -380,11 +381,12 @@ def evaluate_runs(
     only in their training seed are replicates: the cell's ``metrics`` are the mean of theirs
     (``metrics_per_seed``, ``seeds`` and ``run_dirs`` list them); equally specific runs that
     differ in anything else are an error (``ValueError``). The Baseline is added for every
-    size when no baseline run is given.
+    size when no baseline run is given, and so is the setpoint readout (persistence with
+    the measured force read off the chunk's setpoints, built from the dataset's statistics).
     """
     from rmi_learn.data.dataset import load_dataset
     from rmi_learn.trainer import count_parameters
-    from rmi_learn.world_models import DISPLAY_NAMES, BaselineWM, load
+    from rmi_learn.world_models import DISPLAY_NAMES, BaselineWM, SetpointReadoutWM, load
     from rmi_learn.world_models.common import ShuffledActions
 
     ds = load_dataset(data)
@@ -397,6 +399,9 @@ def evaluate_runs(
         entries.append((model, cfg, str(run_dir)))
     if not any(cfg["model"]["kind"] == "baseline" for _, cfg, _ in entries):
         entries.append((BaselineWM().eval(), {"model": {"kind": "baseline"}, "extra": {}}, ""))
+    if not any(cfg["model"]["kind"] == "setpoint-readout" for _, cfg, _ in entries):
+        readout = SetpointReadoutWM.from_stats(stats).eval()
+        entries.append((readout, {"model": readout.config(), "extra": {}}, ""))
 
     for model, cfg, run_dir in entries:
         extra = cfg.get("extra") or {}

@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from rmi_learn.world_models.arx import LinearARX
-from rmi_learn.world_models.baseline import BaselineWM
+from rmi_learn.world_models.baseline import BaselineWM, SetpointReadoutWM
 from rmi_learn.world_models.common import WorldModel
 from rmi_learn.world_models.gru import ACGRUWM, StateGRUWM
 from rmi_learn.world_models.mlp import ACMLPWM
@@ -15,6 +15,7 @@ from rmi_learn.world_models.transformer import TransformerWM
 #: CLI name -> class
 MODELS: dict[str, type[WorldModel]] = {
     "baseline": BaselineWM,
+    "setpoint-readout": SetpointReadoutWM,
     "state-gru": StateGRUWM,
     "ac-gru": ACGRUWM,
     "arx": LinearARX,
@@ -25,6 +26,7 @@ MODELS: dict[str, type[WorldModel]] = {
 #: Names used in the paper's tables.
 DISPLAY_NAMES: dict[str, str] = {
     "baseline": "Baseline",
+    "setpoint-readout": "Setpoint readout",
     "state-gru": "State-GRU-WM",
     "ac-gru": "AC-GRU-WM",
     "arx": "Linear-ARX",
