@@ -21,7 +21,9 @@ Files in ``out_dir``:
 - ``model.safetensors``: the selected (best) weights; hooks may add ``model.<name>.safetensors``
   (e.g. EMA weights) saved at the same moment.
 - ``last.safetensors``: the weights at the latest checkpoint.
-- ``metrics.jsonl``: one JSON object per line (``kind`` = start | step | epoch | end).
+- ``metrics.jsonl``: one JSON object per line (``kind`` = start | step | epoch | end; see
+  :mod:`rmi_learn.metrics_log`, which also reads it back).
+- ``tensorboard/``: with ``tensorboard=True``, the same numbers as TensorBoard scalars.
 - ``train_state.pt``: everything needed to resume bit-exactly (model, optimiser, scheduler,
   step/epoch/batch position, torch/numpy/python RNG, hook state). Loaded with
   ``weights_only=True``; it is never needed for inference.
@@ -49,6 +51,8 @@ import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
+from rmi_learn.metrics_log import METRICS_FILE, TENSORBOARD_DIR, TensorBoardLog
+
 __all__ = [
     "EMA",
     "Hook",
@@ -65,7 +69,6 @@ __all__ = [
 
 STATE_FILE = "train_state.pt"
 CONFIG_FILE = "config.json"
-METRICS_FILE = "metrics.jsonl"
 SUMMARY_FILE = "summary.json"
 BEST_WEIGHTS = "model.safetensors"
 LAST_WEIGHTS = "last.safetensors"
@@ -411,6 +414,8 @@ class Trainer:
             the data or the loss); the model and optimisation settings always must.
         resume_legacy: values of ``resume_fixed`` keys assumed for a first call that did not
             record them.
+        tensorboard: also write the metrics as TensorBoard events under
+            ``out_dir/tensorboard`` (needs the ``tensorboard`` package; checked here).
     """
 
     def __init__(
@@ -428,6 +433,7 @@ class Trainer:
         resume: bool = False,
         resume_fixed: Sequence[str] = (),
         resume_legacy: dict[str, Any] | None = None,
+        tensorboard: bool = False,
     ) -> None:
         self.config = config
         self.cfg = config.effective()
@@ -442,6 +448,12 @@ class Trainer:
         self.resume = resume
         self.resume_fixed = tuple(resume_fixed)
         self.resume_legacy = resume_legacy or {}
+        self.tensorboard = tensorboard
+        self._tb: TensorBoardLog | None = None
+        if tensorboard:
+            from rmi_learn.metrics_log import require_tensorboard
+
+            require_tensorboard()
         if len(train_data) == 0:
             raise ValueError("the training data set is empty")
         if self.cfg.select_mode not in ("min", "max"):
@@ -574,10 +586,13 @@ class Trainer:
             path.write_text("".join(k + "\n" for k in keep), encoding="utf-8")
 
     def log(self, record: dict[str, Any]) -> None:
-        """Append one JSON line to metrics.jsonl (adds ``step`` and wall ``time``)."""
+        """Append one JSON line to metrics.jsonl (adds ``step`` and wall ``time``), and hand
+        it to TensorBoard when that is on."""
         rec = {"step": self.state.step, "time": time.time(), **record}
         with open(self.out_dir / METRICS_FILE, "a", encoding="utf-8") as f:
             f.write(json.dumps(rec, sort_keys=True, default=float) + "\n")
+        if self._tb is not None:
+            self._tb.write(rec)
 
     def _save_best(self) -> None:
         save_weights(_state_tensors(self.model), self.out_dir / BEST_WEIGHTS)
@@ -624,6 +639,17 @@ class Trainer:
         self.out_dir.mkdir(parents=True, exist_ok=True)
         if self.state.finished:
             return self.summary()
+        if self.tensorboard:
+            purge = self.state.step + 1 if self._resumed else None
+            self._tb = TensorBoardLog(self.out_dir / TENSORBOARD_DIR, purge_step=purge)
+        try:
+            return self._fit(stop_after_steps)
+        finally:
+            if self._tb is not None:
+                self._tb.close()
+                self._tb = None
+
+    def _fit(self, stop_after_steps: int | None) -> dict[str, Any]:
         if not self._resumed:
             _write_json(self.out_dir / CONFIG_FILE, self._config_json())
         for h in self.hooks:

@@ -1,20 +1,23 @@
 """The report of a pipeline directory (``rmi report``): sections of stages that have not
-run, our numbers beside the paper's, HTML escaping."""
+run, our numbers beside the paper's, the training curves, HTML escaping."""
 
 from __future__ import annotations
 
 import json
+import math
+import struct
 from pathlib import Path
 from typing import Any
 
 from rmi_learn import cli
-from rmi_learn.analysis.report import Doc, write_report
+from rmi_learn.analysis.report import Doc, training_figure, training_runs, write_report
+from rmi_learn.metrics_log import loss_curves
 
 
 def test_report_of_an_empty_directory_says_what_is_missing(tmp_path: Path) -> None:
     md, page = write_report(tmp_path)
     text = md.read_text()
-    for stage in ("sweep", "analysis", "eval-wm", "rank", "closed-loop"):
+    for stage in ("sweep", "analysis", "eval-wm", "rank", "world-models", "closed-loop"):
         assert f"stage `{stage}` has not run" in text
     html = page.read_text()
     assert html.startswith("<!DOCTYPE html>") and html.rstrip().endswith("</html>")
@@ -65,3 +68,48 @@ def test_doc_escapes_html() -> None:
     d.table(["h"], [["<i>"]])
     page = d.html("t")
     assert "a &lt;b&gt; &amp; <code>x&lt;y</code>" in page and "<td>&lt;i&gt;</td>" in page
+
+
+def png_size(path: Path) -> tuple[int, int]:
+    """Width and height (pixels) from a PNG's header."""
+    width, height = struct.unpack(">II", path.read_bytes()[16:24])
+    return int(width), int(height)
+
+
+def test_report_draws_the_training_curves_of_tiny_runs(
+    tmp_path: Path, synthetic_dataset_dir: Path
+) -> None:
+    data = str(synthetic_dataset_dir)
+    quiet = ["--debug", "--no-progress", "--threads", "1"]
+    for model, extra in (("ac-mlp", ["--model-arg", "hidden=16"]), ("arx", [])):
+        out = tmp_path / "wm" / model
+        assert (
+            cli.main(
+                ["train-wm", "--model", model, "--data", data, "--out", str(out)] + quiet + extra
+            )
+            == 0
+        )
+    policy = tmp_path / "policy" / "flow"
+    argv = ["train-policy", "--objective", "flow", "--data", data, "--out", str(policy)]
+    assert cli.main(argv + quiet + ["--channels", "8,16"]) == 0
+
+    for run in (tmp_path / "wm" / "ac-mlp", policy):
+        curves = loss_curves(run)
+        assert curves["epoch"] == [1.0, 2.0]  # debug mode: two epochs
+        assert all(math.isfinite(v) and v > 0 for v in curves["train_loss"] + curves["val_loss"])
+    assert loss_curves(tmp_path / "wm" / "arx") == {}  # fitted in closed form: no curve
+    assert [label for label, _ in training_runs(tmp_path)] == [
+        "world model ac-mlp",
+        "world model arx",
+        "policy flow",
+    ]
+
+    md, page = write_report(tmp_path)
+    fig = tmp_path / "report" / "figures" / "fig_training.png"
+    assert "](figures/fig_training.png)" in md.read_text()
+    assert 'src="figures/fig_training.png"' in page.read_text()
+    # Two panels side by side (3.3 in each at 120 dpi): ARX has none.
+    assert png_size(fig) == (792, 312)
+    only_arx = tmp_path / "arx.png"
+    assert not training_figure([("arx", tmp_path / "wm" / "arx")], only_arx)
+    assert not only_arx.exists()

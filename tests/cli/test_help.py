@@ -10,7 +10,8 @@ import pytest
 from rmi_learn.cli import COMMANDS, build_parser, main
 
 #: Command -> option (first spelling; the dest of a positional or subcommand) -> (repr of its
-#: default, required), as the command line of commit b0496b8 defined them.
+#: default, required), as the command line of commit b0496b8 defined them, plus the options
+#: added since (train-wm and train-policy: --tensorboard, --config).
 OPTIONS: dict[str, dict[str, tuple[str, bool]]] = {
     "analyze": {
         "--runs": ('None', True),
@@ -162,6 +163,8 @@ OPTIONS: dict[str, dict[str, tuple[str, bool]]] = {
         "--deterministic": ('False', False),
         "--no-progress": ('False', False),
         "--channels": ('(64, 128, 256)', False),
+        "--tensorboard": ('False', False),
+        "--config": ('None', False),
     },
     "train-wm": {
         "--model": ('None', True),
@@ -188,6 +191,8 @@ OPTIONS: dict[str, dict[str, tuple[str, bool]]] = {
         "--resume": ('False', False),
         "--debug": ('False', False),
         "--no-progress": ('False', False),
+        "--tensorboard": ('False', False),
+        "--config": ('None', False),
     },
 }
 

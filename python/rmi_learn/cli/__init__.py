@@ -56,14 +56,36 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _with_options_file(parser: argparse.ArgumentParser, argv: list[str]) -> list[str]:
+    """``argv`` with the options of the command's ``--config`` file in front of the
+    command's own, for the commands whose module sets ``OPTIONS_FILE`` (see
+    :mod:`rmi_learn.cli.options_file`)."""
+    from rmi_learn.cli import options_file
+
+    if not argv or argv[0] not in COMMANDS:
+        return argv
+    if not getattr(COMMANDS[argv[0]][0], "OPTIONS_FILE", False):
+        return argv
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return [argv[0], *options_file.expand(sub.choices[argv[0]], argv[1:])]
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one ``rmi`` command. Outputs are written atomically, so what finished is kept
     after Ctrl-C (status 130), and the resumable commands (sweep, train-*, closed-loop,
     pipeline) pick up from there when rerun. Input errors end with one line and status 2
     (see :mod:`rmi_learn.errors`)."""
-    from rmi_learn.errors import report
+    from rmi_learn.errors import InputError, report
 
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        argv = _with_options_file(parser, argv)
+    except InputError as exc:
+        status = report(argv[0], exc)
+        assert status is not None
+        return status
+    args = parser.parse_args(argv)
     module = COMMANDS[args.rmi_command][0]
     try:
         return int(module.run(args) or 0)

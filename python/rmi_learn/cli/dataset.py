@@ -1,7 +1,9 @@
-"""``rmi dataset``: build the learning dataset from run files, or describe a built one.
+"""``rmi dataset``: build the learning dataset from run files, describe a built one, or
+export it to another dataset format.
 
 ``rmi dataset build --runs DIR --out DIR [--seed 0]`` (``rmi dataset --runs DIR --out DIR``
-is the same) and ``rmi dataset info DIR``.
+is the same), ``rmi dataset info DIR`` and
+``rmi dataset export --format lerobot --data DIR --out DIR``.
 """
 
 from __future__ import annotations
@@ -23,22 +25,37 @@ def _build_args(p: argparse.ArgumentParser, sub: bool) -> None:
     p.add_argument("--seed", type=seed, default=seed_default, help="split seed (default 0)")
 
 
+#: Formats ``rmi dataset export`` writes.
+EXPORT_FORMATS = ("lerobot",)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Subcommands ``build`` and ``info``; bare options mean ``build``, and the build options
-    may stand before or after ``build``."""
+    """Subcommands ``build``, ``info`` and ``export``; bare options mean ``build``, and the
+    build options may stand before or after ``build``."""
     _build_args(parser, sub=False)
-    sub = parser.add_subparsers(dest="dataset_command", metavar="{build,info}")
+    sub = parser.add_subparsers(dest="dataset_command", metavar="{build,info,export}")
     b = sub.add_parser("build", help="resample runs to 20 ms, split, standardise, cache")
     _build_args(b, sub=True)
     i = sub.add_parser("info", help="print counts and statistics of a built dataset")
     i.add_argument("dir", metavar="DIR", help="dataset directory")
     i.add_argument("--json", action="store_true", help="print the full JSON summary")
+    e = sub.add_parser("export", help="write a built dataset in another format (LeRobot v2.1)")
+    e.add_argument(
+        "--format", choices=EXPORT_FORMATS, default="lerobot", help="output format (lerobot)"
+    )
+    e.add_argument("--data", required=True, metavar="DIR", help="built dataset directory")
+    # Default "absent", so that `rmi dataset --out O export --data D` keeps O.
+    e.add_argument(
+        "--out", default=argparse.SUPPRESS, metavar="DIR", help="new or empty output directory"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``build`` or ``info``; 0 on success, 2 on bad input (missing or damaged runs)."""
     from rmi_learn.data.dataset import build, describe
 
+    if getattr(args, "dataset_command", None) == "export":
+        return _export(args)
     if getattr(args, "dataset_command", None) == "info":
         with input_errors(OSError, ValueError):
             d = describe(args.dir)
@@ -61,5 +78,22 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"dataset -> {out}: {info['counts']['kept']} of {info['counts']['run_files']} runs, "
         + ", ".join(f"{s} {v['runs']} runs / {v['rows']} rows" for s, v in info["splits"].items())
+    )
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    """``rmi dataset export``: one summary line on success."""
+    from rmi_learn.data.export_lerobot import export_lerobot
+
+    if not args.out:
+        raise InputError("give --out DIR, a new or empty directory for the export")
+    out = export_lerobot(args.data, args.out)
+    info = json.loads((out / "meta" / "info.json").read_text())
+    print(
+        f"{args.format} dataset -> {out}: {info['total_episodes']} episodes, "
+        f"{info['total_frames']} frames at {info['fps']} fps ("
+        + ", ".join(f"{k} {v}" for k, v in info["splits"].items())
+        + ")"
     )
     return 0

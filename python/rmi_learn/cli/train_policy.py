@@ -1,5 +1,9 @@
 """``rmi train-policy``: train the goal-conditioned UNet policy (diffusion or flow matching)
-on a built dataset (see :mod:`rmi_learn.policies.training`)."""
+on a built dataset (see :mod:`rmi_learn.policies.training`).
+
+``--config FILE`` holds any of the options as JSON (see :mod:`rmi_learn.cli.options_file`);
+options on the command line override it. ``--tensorboard`` also writes TensorBoard events.
+"""
 
 from __future__ import annotations
 
@@ -8,6 +12,11 @@ import json
 from pathlib import Path
 
 from rmi_learn.cli.argtypes import count, counts, device, non_negative, positive, real, seed
+from rmi_learn.cli.options_file import add_config_option
+from rmi_learn.cli.train_wm import add_tensorboard_option
+
+#: ``--config FILE`` holds this command's options (see :mod:`rmi_learn.cli.options_file`).
+OPTIONS_FILE = True
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -52,6 +61,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=(64, 128, 256),
         help="UNet channel widths, comma separated, multiples of 8 (default 64,128,256)",
     )
+    add_tensorboard_option(parser)
+    add_config_option(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -86,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
         deterministic=args.deterministic,
         progress=not args.no_progress,
         channels=args.channels,
+        tensorboard=args.tensorboard,
     )
     print(json.dumps(summary, indent=2))
     return 0

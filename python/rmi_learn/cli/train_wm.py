@@ -4,7 +4,10 @@
     rmi train-wm --model ac-gru --data DATASET --out RUN [--size 8|10|12]
                  [--state-groups LS|LS+G|LS+G+C|ALL] [--shuffle-actions] [--epochs N]
                  [--water-weight W] [--huber-delta D] [--loss-scale state|change]
-                 [--seed S] [--resume] [--debug]
+                 [--seed S] [--resume] [--debug] [--config FILE] [--tensorboard]
+
+``--config FILE`` holds any of these options as JSON (see
+:mod:`rmi_learn.cli.options_file`); options on the command line override it.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ import json
 from typing import Any
 
 from rmi_learn.cli.argtypes import count, device, positive, seed
+from rmi_learn.cli.options_file import add_config_option
 from rmi_learn.data.schema import SPONGE_SIZES_CM
 from rmi_learn.errors import InputError
 from rmi_learn.world_models.training import (
@@ -113,6 +117,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resume", action="store_true", help="continue the run in --out")
     parser.add_argument("--debug", action="store_true", help="tiny run that takes seconds")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_tensorboard_option(parser)
+    add_config_option(parser)
+
+
+#: ``--config FILE`` holds this command's options (see :mod:`rmi_learn.cli.options_file`).
+OPTIONS_FILE = True
+
+
+def add_tensorboard_option(parser: argparse.ArgumentParser) -> None:
+    """``--tensorboard``, shared by the training commands."""
+    parser.add_argument(
+        "--tensorboard",
+        action="store_true",
+        help="also write the metrics as TensorBoard events to OUT/tensorboard (needs the "
+        "tensorboard package); OUT/metrics.jsonl is always written",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -147,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
         resume=args.resume,
         debug=args.debug,
         progress=not args.no_progress,
+        tensorboard=args.tensorboard,
     )
     print(json.dumps(summary, indent=2))
     return 0
@@ -164,5 +185,3 @@ def _parse_model_args(items: list[str]) -> dict[str, Any]:
         except json.JSONDecodeError:
             out[key] = value
     return out
-
-

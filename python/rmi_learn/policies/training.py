@@ -50,6 +50,7 @@ def train_policy(
     deterministic: bool = False,
     progress: bool = True,
     channels: tuple[int, ...] = (64, 128, 256),
+    tensorboard: bool = False,
 ) -> dict[str, Any]:
     """Train one policy (``objective`` ``"diffusion"`` or ``"flow"``) on the dataset ``data``
     into the run directory ``out`` and return the run summary (see the module docstring).
@@ -57,7 +58,9 @@ def train_policy(
     ``history`` and ``horizon`` are the window lengths (control steps; the horizon H_pi must
     be divisible by 4), ``channels`` the UNet widths, ``ema_decay`` the cap of the EMA decay,
     ``snr_floor`` the floor of the min-SNR weight (diffusion), ``val_windows`` the size of
-    the evenly spaced validation subset that selects the checkpoint. Raises
+    the evenly spaced validation subset that selects the checkpoint. Every epoch's training
+    and validation losses and selection metrics go to ``metrics.jsonl``; ``tensorboard``
+    also writes them as TensorBoard events (needs ``tensorboard``). Raises
     :class:`~rmi_learn.errors.InputError` for a UNet shape it cannot build, a dataset without
     training or validation windows, or an output directory that holds a run without
     ``resume`` (or with other settings).
@@ -70,6 +73,11 @@ def train_policy(
     from rmi_learn.policies.ema import EMA
     from rmi_learn.policies.unet import PolicyUNet, UNetConfig
     from rmi_learn.trainer import TrainConfig, Trainer, TrainState, fetch_batch
+
+    if tensorboard:
+        from rmi_learn.metrics_log import require_tensorboard
+
+        require_tensorboard()
 
     try:
         unet_cfg = UNetConfig(horizon=horizon, channels=channels)
@@ -176,6 +184,7 @@ def train_policy(
             },
             hooks=[ema],
             resume=resume,
+            tensorboard=tensorboard,
         )
     except ValueError as exc:
         raise InputError(exc) from exc

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -115,11 +115,14 @@ def evaluate_rollouts(
     max_windows: int | None = None,
     steps: Sequence[int] = HORIZON_STEPS,
     device: str = "cpu",
+    loss: Callable[[dict[str, torch.Tensor], dict[str, torch.Tensor]], torch.Tensor] | None = None,
 ) -> dict[str, float]:
     """Free-rollout metrics of ``model`` over the windows of ``data`` (``batch(indices)``).
 
     ``z_std`` (18,) is the training standard deviation of z in SI units (Dataset.stats.z_std).
-    ``max_windows`` evaluates an evenly spaced subset (for quick validation).
+    ``max_windows`` evaluates an evenly spaced subset (for quick validation). ``loss``
+    (``(out, batch) -> scalar``, e.g. the training loss) adds ``"loss"``: its mean over the
+    batches, weighted by their window counts, from the same free rollouts.
     """
     was = model.training
     model.eval()
@@ -128,13 +131,21 @@ def evaluate_rollouts(
     idx_all = np.arange(n)
     if max_windows is not None and n > max_windows:
         idx_all = np.linspace(0, n - 1, max_windows).round().astype(np.int64)
+    loss_sum, loss_n = 0.0, 0
     for s in range(0, len(idx_all), batch_size):
         batch = data.batch(idx_all[s : s + batch_size])
         batch = {k: v.to(device) if isinstance(v, torch.Tensor) else v for k, v in batch.items()}
         out = model(batch["hist"], batch["hist_mask"], batch["actions"])
         acc.update(out, batch)
+        if loss is not None:
+            n = int(batch["hist"].shape[0])
+            loss_sum += float(loss(out, batch)) * n
+            loss_n += n
     model.train(was)
-    return acc.result()
+    result = acc.result()
+    if loss is not None:
+        result["loss"] = loss_sum / loss_n if loss_n else float("nan")
+    return result
 
 
 def latency_inputs(

@@ -3,8 +3,11 @@ the causal Transformer W_T) on a built dataset: :func:`train` (``rmi train-wm``)
 
 The run directory gets config.json (model architecture, training settings, data path, size,
 state groups, shuffle flag and the dataset's standardisation statistics), model.safetensors
-(selected weights), metrics.jsonl, summary.json and, for gradient-trained models,
-train_state.pt for ``resume``. Load the result with ``rmi_learn.world_models.load(RUN)``.
+(selected weights), metrics.jsonl (per epoch: the training loss, the validation loss of
+free rollouts and the validation rollout errors; see :mod:`rmi_learn.metrics_log`),
+summary.json and, for gradient-trained models, train_state.pt for ``resume`` (and with
+``tensorboard``, TensorBoard events). Load the result with
+``rmi_learn.world_models.load(RUN)``.
 """
 
 from __future__ import annotations
@@ -99,6 +102,7 @@ def train(
     debug: bool = False,
     progress: bool = True,
     model_args: dict[str, Any] | None = None,
+    tensorboard: bool = False,
 ) -> dict[str, Any]:
     """Train one world model into ``out`` and return the run summary (see module doc).
 
@@ -115,7 +119,10 @@ def train(
     channel's error in units of its RMS change over the horizon in the training windows
     (:func:`rmi_learn.world_models.common.change_scale`, stored in config.json as
     ``channel_scale``) before the Huber loss and the water weight. ``resume`` refuses
-    settings of :data:`RESUME_FIXED` that differ from the first call's.
+    settings of :data:`RESUME_FIXED` that differ from the first call's. Every epoch's
+    metrics go to ``metrics.jsonl``, among them ``val_loss``: the training loss on the
+    validation windows' free rollouts (no teacher forcing, the same weights and scale);
+    ``tensorboard`` also writes them as TensorBoard events (needs ``tensorboard``).
 
     Settings or data it cannot train on (an unknown model or constructor argument, no
     training windows, a resume with other settings) raise
@@ -131,6 +138,10 @@ def train(
 
     if model not in MODEL_CHOICES:
         raise ValueError(f"unknown model {model!r}")
+    if tensorboard:
+        from rmi_learn.metrics_log import require_tensorboard
+
+        require_tensorboard()
     if loss_scale is not None and loss_scale not in LOSS_SCALES:
         raise ValueError(f"loss_scale must be one of {list(LOSS_SCALES)}, got {loss_scale!r}")
     if model in ("baseline", "arx") and state_groups != "ALL":
@@ -171,14 +182,18 @@ def train(
         "stats": stats.to_json(),
     }
 
+    val_loss: Any = None  # the training loss on validation rollouts, once it is defined
+
     def validate(m: torch.nn.Module, state: Any = None) -> dict[str, float]:
         if len(val_ws) == 0:
             return {"val_water_mae_g@64": float("nan"), "val_water_mae_g_mean": float("nan")}
-        r = evaluate_rollouts(m, val_ws, z_std, max_windows=val_windows, device=device)
+        r = evaluate_rollouts(
+            m, val_ws, z_std, max_windows=val_windows, device=device, loss=val_loss
+        )
         return {f"val_{k}": v for k, v in r.items()}
 
     if not net.trainable:
-        return _closed_form(net, model, out, train_ws, validate, extra, resume)
+        return _closed_form(net, model, out, train_ws, validate, extra, resume, tensorboard)
 
     d = DEFAULTS[model]
     extra["tf_epochs"] = tf_epochs
@@ -240,6 +255,19 @@ def train(
         logs["tf_prob"] = tf
         return loss, logs
 
+    def rollout_loss(o: dict[str, torch.Tensor], batch: dict[str, torch.Tensor]) -> Any:
+        return wm_loss(
+            o,
+            batch,
+            channel_weight=cw.to(o["z"].device),
+            channel_scale=None if scale is None else scale.to(o["z"].device),
+            z_keep=net.z_keep,
+            classify=net.classify,
+            huber_delta=huber_delta,
+        )[0]
+
+    val_loss = rollout_loss
+
     trainer = Trainer(
         net,
         loss_fn,
@@ -252,6 +280,7 @@ def train(
         resume=resume,
         resume_fixed=RESUME_FIXED,
         resume_legacy=RESUME_LEGACY,
+        tensorboard=tensorboard,
     )
     t0 = time.perf_counter()
     summary = trainer.fit()
@@ -268,12 +297,14 @@ def _closed_form(
     validate: Any,
     extra: dict[str, Any],
     resume: bool,
+    tensorboard: bool = False,
 ) -> dict[str, Any]:
-    """Baseline (nothing to fit) and Linear-ARX (ridge): same run-directory layout."""
+    """Baseline (nothing to fit) and Linear-ARX (ridge): same run-directory layout, one
+    ``epoch`` line of validation metrics (no training loss)."""
+    from rmi_learn.metrics_log import METRICS_FILE, TENSORBOARD_DIR, TensorBoardLog
     from rmi_learn.trainer import (
         BEST_WEIGHTS,
         CONFIG_FILE,
-        METRICS_FILE,
         SUMMARY_FILE,
         _write_json,
         save_weights,
@@ -305,10 +336,13 @@ def _closed_form(
     save_weights(net.state_dict(), out / BEST_WEIGHTS)
     metrics = validate(net)
     fit_s = time.perf_counter() - t0
+    record = {"kind": "epoch", "epoch": 1, "step": 0, "fit_s": fit_s, **metrics}
     with open(out / METRICS_FILE, "a", encoding="utf-8") as f:
-        f.write(
-            json.dumps({"kind": "epoch", "epoch": 1, "step": 0, "fit_s": fit_s, **metrics}) + "\n"
-        )
+        f.write(json.dumps(record) + "\n")
+    if tensorboard:
+        log = TensorBoardLog(out / TENSORBOARD_DIR)
+        log.write(record)
+        log.close()
     summary = {
         "finished": True,
         "stopped_early": False,

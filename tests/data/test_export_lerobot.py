@@ -1,0 +1,207 @@
+"""``rmi dataset export --format lerobot``: the LeRobot v2.1 layout read back with polars and
+json (shapes, names, frame counts, timestamps, splits, statistics), action channels from the
+dataset's metadata, and the refusals that leave nothing half-written."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+import pytest
+
+from rmi_learn.cli import main
+from rmi_learn.data import export_lerobot as lerobot
+from rmi_learn.data.schema import OBS, PHASES
+
+
+def read_jsonl(path: Path) -> list[dict[str, Any]]:
+    return [json.loads(line) for line in path.read_text().splitlines()]
+
+
+def vectors(table: pl.DataFrame, name: str) -> np.ndarray:
+    s = table[name]
+    return np.asarray(s.list.to_array(len(s[0])).to_numpy(), dtype=np.float64)
+
+
+def stats_of(values: np.ndarray) -> dict[str, list[float]]:
+    """Population statistics recomputed here, independently of the exporter."""
+    x = values.astype(np.float64).reshape(values.shape[0], -1)
+    return {
+        "mean": list(np.mean(x, axis=0)),
+        "std": list(np.sqrt(np.mean((x - np.mean(x, axis=0)) ** 2, axis=0))),
+        "min": list(np.min(x, axis=0)),
+        "max": list(np.max(x, axis=0)),
+        "count": [x.shape[0]],
+    }
+
+
+def assert_stats(got: dict[str, dict[str, list[float]]], table: pl.DataFrame) -> None:
+    assert sorted(got) == sorted(table.columns)
+    for name in table.columns:
+        values = vectors(table, name) if isinstance(table[name].dtype, pl.List) else table[name]
+        want = stats_of(np.asarray(values, dtype=np.float64))
+        for key in ("mean", "std", "min", "max"):
+            np.testing.assert_allclose(got[name][key], want[key], rtol=1e-9, atol=1e-12)
+        assert got[name]["count"] == want["count"]
+
+
+@pytest.fixture(scope="module")
+def exported(synthetic_dataset_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("lerobot") / "export"
+    argv = ["dataset", "export", "--format", "lerobot", "--data", str(synthetic_dataset_dir)]
+    assert main([*argv, "--out", str(out)]) == 0
+    return out
+
+
+def test_layout_and_info(exported: Path, synthetic_dataset_dir: Path) -> None:
+    info = json.loads((exported / "meta" / "info.json").read_text())
+    frames = pl.read_parquet(synthetic_dataset_dir / "frames.parquet")
+    runs = pl.read_parquet(synthetic_dataset_dir / "runs.parquet")
+    assert info["codebase_version"] == "v2.1"
+    assert info["fps"] == 50 and info["chunks_size"] == 1000 and info["total_chunks"] == 1
+    assert info["total_episodes"] == runs.height
+    assert info["total_frames"] == frames.height
+    assert info["total_tasks"] == 1
+    feats = info["features"]
+    assert feats["observation.state"]["shape"] == [23]
+    assert feats["observation.state"]["names"] == list(OBS)
+    assert feats["action"]["names"] == ["F_target", "v_cmd"]
+    assert feats["action"]["shape"] == [2]
+    tasks = read_jsonl(exported / "meta" / "tasks.jsonl")
+    assert tasks == [{"task_index": 0, "task": lerobot.TASK}]
+    files = sorted((exported / "data").rglob("*.parquet"))
+    assert len(files) == runs.height
+    for ep in range(runs.height):
+        path = exported / info["data_path"].format(episode_chunk=0, episode_index=ep)
+        assert path in files
+        table = pl.read_parquet(path)
+        assert table.columns == list(feats)
+        for name, ft in feats.items():
+            if ft["shape"] != [1]:
+                assert table[name].dtype == pl.List(pl.Float32)
+                assert vectors(table, name).shape == (table.height, ft["shape"][0])
+            else:
+                want = {"float32": pl.Float32, "int64": pl.Int64, "bool": pl.Boolean}
+                assert table[name].dtype == want[ft["dtype"]], name
+
+
+def test_episodes_are_the_runs_with_their_frames_and_split(
+    exported: Path, synthetic_dataset_dir: Path
+) -> None:
+    info = json.loads((exported / "meta" / "info.json").read_text())
+    frames = pl.read_parquet(synthetic_dataset_dir / "frames.parquet")
+    runs = pl.read_parquet(synthetic_dataset_dir / "runs.parquet")
+    episodes = read_jsonl(exported / "meta" / "episodes.jsonl")
+    split_of = dict(zip(runs["run_id"], runs["split"], strict=True))
+    run_of = dict(zip(runs["run_id"], runs["run"], strict=True))
+    # Splits are contiguous episode ranges in train, val, test order.
+    ranges = {s: range(*map(int, r.split(":"))) for s, r in info["splits"].items()}
+    assert list(ranges) == ["train", "val", "test"]
+    assert sum(len(r) for r in ranges.values()) == len(episodes)
+    index = 0
+    for ep in episodes:
+        assert split_of[ep["run_id"]] == ep["split"]
+        assert ep["episode_index"] in ranges[ep["split"]]
+        assert ep["tasks"] == [lerobot.TASK]
+        rows = frames.filter(pl.col("run") == run_of[ep["run_id"]]).sort("t")
+        table = pl.read_parquet(
+            exported / info["data_path"].format(episode_chunk=0, episode_index=ep["episode_index"])
+        )
+        n = table.height
+        assert n == ep["length"] == rows.height
+        assert table["frame_index"].to_list() == list(range(n))
+        assert table["index"].to_list() == list(range(index, index + n))
+        assert set(table["episode_index"]) == {ep["episode_index"]}
+        assert table["next.done"].to_list() == [False] * (n - 1) + [True]
+        np.testing.assert_allclose(np.diff(table["timestamp"].to_numpy()), 0.02, atol=1e-5)
+        assert table["timestamp"][0] == 0.0
+        np.testing.assert_allclose(table["sim_time"], rows["time"], rtol=1e-6)
+        assert [PHASES[i] for i in table["phase_index"]] == rows["phase"].to_list()
+        y = rows.select(OBS).to_numpy()
+        state, mask = vectors(table, "observation.state"), vectors(table, "observation.state_mask")
+        finite = np.isfinite(y)
+        assert (mask == finite).all()
+        assert (state[~finite] == 0.0).all()
+        assert (state[finite] == y[finite].astype(np.float32)).all()
+        u = rows.select("F_target", "v_cmd").to_numpy().astype(np.float32)
+        assert (vectors(table, "action") == u).all()
+        index += n
+    # The synthetic runs lose contact, so some v_res are NaN: the fill was exercised.
+    assert frames["v_res"].is_nan().any()
+
+
+def test_stats_equal_recomputed_values(exported: Path) -> None:
+    info = json.loads((exported / "meta" / "info.json").read_text())
+    tables = [pl.read_parquet(p) for p in sorted((exported / "data").rglob("*.parquet"))]
+    per_episode = read_jsonl(exported / "meta" / "episodes_stats.jsonl")
+    assert [e["episode_index"] for e in per_episode] == list(range(info["total_episodes"]))
+    for rec in per_episode:
+        table = next(t for t in tables if t["episode_index"][0] == rec["episode_index"])
+        assert_stats(rec["stats"], table)
+    assert_stats(json.loads((exported / "meta" / "stats.json").read_text()), pl.concat(tables))
+
+
+def test_action_channels_come_from_the_dataset(synthetic_dataset_dir: Path, tmp_path: Path) -> None:
+    data = tmp_path / "ds"
+    shutil.copytree(synthetic_dataset_dir, data)
+    stats = json.loads((data / "stats.json").read_text())
+    stats["u_names"] = ["F_target"]
+    (data / "stats.json").write_text(json.dumps(stats))
+    out = lerobot.export_lerobot(data, tmp_path / "export")
+    feats = json.loads((out / "meta" / "info.json").read_text())["features"]
+    assert feats["action"] == {"dtype": "float32", "shape": [1], "names": ["F_target"]}
+    table = pl.read_parquet(next((out / "data").rglob("*.parquet")))
+    assert vectors(table, "action").shape == (table.height, 1)
+
+
+def one_line(capsys: pytest.CaptureFixture[str]) -> str:
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("rmi dataset: "), lines
+    return lines[0]
+
+
+def test_refuses_a_non_empty_out_and_accepts_an_empty_one(
+    synthetic_dataset_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "export"
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    argv = ["dataset", "export", "--data", str(synthetic_dataset_dir), "--out", str(out)]
+    assert main(argv) == 2
+    assert str(out) in one_line(capsys) and (out / "keep.txt").read_text() == "mine"
+    assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]
+    (out / "keep.txt").unlink()
+    assert main(argv) == 0
+    assert (out / "meta" / "info.json").exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["export"]
+
+
+def test_a_missing_action_channel_is_named(
+    synthetic_dataset_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    data = tmp_path / "ds"
+    shutil.copytree(synthetic_dataset_dir, data)
+    stats = json.loads((data / "stats.json").read_text())
+    stats["u_names"] = ["F_target", "grip_speed"]
+    (data / "stats.json").write_text(json.dumps(stats))
+    out = tmp_path / "export"
+    assert main(["dataset", "export", "--data", str(data), "--out", str(out)]) == 2
+    line = one_line(capsys)
+    assert "grip_speed" in line and str(data / "stats.json") in line
+    assert not out.exists()
+
+
+def test_a_failure_leaves_no_output_and_no_temporary(
+    synthetic_dataset_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def boom(table: pl.DataFrame) -> dict[str, Any]:
+        raise OSError("disk full")
+
+    monkeypatch.setattr(lerobot, "table_stats", boom)
+    with pytest.raises(OSError, match="disk full"):
+        lerobot.export_lerobot(synthetic_dataset_dir, tmp_path / "export")
+    assert list(tmp_path.iterdir()) == []
