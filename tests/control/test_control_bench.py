@@ -10,6 +10,7 @@ nothing, the tests check the benchmark's mechanics.
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -251,3 +252,21 @@ def test_models_of_another_dataset_are_refused(
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and needle in err[0], err
         assert not out.exists()
+
+
+def test_a_policy_beside_the_two_objectives_is_a_controller_of_its_own(
+    inputs: dict[str, Path], tmp_path: Path
+) -> None:
+    # e.g. a distilled few-step policy next to its teacher, compared from the same states.
+    pol = tmp_path / "policy"
+    shutil.copytree(inputs["policy"], pol)
+    shutil.copytree(pol / "flow", pol / "flow-fast")
+    (pol / "notes").mkdir()  # not a policy run: ignored
+    run_control_bench(inputs["runs"], inputs["data"], inputs["wm"], pol, tmp_path / "out",
+                      states_per_size=1, goals_per_state=1, setpoints=2, k=2, receding=0,
+                      progress=False)  # fmt: skip
+    rows = _rows(tmp_path / "out")
+    ctrls = set(rows["controller"].to_list())
+    assert {"first-sample/flow", "first-sample/flow-fast", "ranked-ac-gru/flow-fast"} <= ctrls
+    fast = rows.filter(pl.col("objective") == "flow-fast")
+    assert fast.height > 0 and (fast["status"] == "ok").all()

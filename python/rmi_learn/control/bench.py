@@ -121,13 +121,17 @@ class Candidate:
 
 
 def load_policies(policy_dir: Path, ds: Any) -> dict[str, PolicyInput]:
-    """The trained policies under ``policy_dir`` (``diffusion/`` and/or ``flow/``, or one
-    policy run directory itself), checked against the dataset's statistics."""
+    """The trained policies under ``policy_dir`` (``diffusion/`` and/or ``flow/``, any other
+    policy run beside them, such as a distilled one, under its directory's name; or one policy
+    run directory itself), checked against the dataset's statistics."""
     from rmi_learn.policies.checkpoint import load_policy
 
     if not policy_dir.is_dir():
         raise ControlBenchError(f"--policy {policy_dir} is not a directory")
     dirs = {o: policy_dir / o for o in OBJECTIVES if (policy_dir / o / "config.json").exists()}
+    for d in sorted(policy_dir.iterdir()):
+        if d.name not in dirs and d.is_dir() and _is_policy_run(d / "config.json"):
+            dirs[d.name] = d
     if not dirs and (policy_dir / "config.json").exists():
         cfg = json.loads((policy_dir / "config.json").read_text())
         dirs = {str(cfg.get("model", {}).get("objective")): policy_dir}
@@ -155,6 +159,16 @@ def load_policies(policy_dir: Path, ds: Any) -> dict[str, PolicyInput]:
     if len({(p.history, p.horizon) for p in out.values()}) != 1:
         raise ControlBenchError("the policies differ in history or chunk length")
     return out
+
+
+def _is_policy_run(config: Path) -> bool:
+    """Whether ``config`` is the config.json of a policy run (not a world model's)."""
+    try:
+        cfg = json.loads(config.read_text())
+    except (OSError, ValueError):
+        return False
+    model = cfg.get("model") if isinstance(cfg, dict) else None
+    return isinstance(model, dict) and model.get("objective") in OBJECTIVES
 
 
 def _can_score(model: Any, horizon: int) -> str | None:
@@ -827,7 +841,7 @@ def run_control_bench(
         bar.close()
     wall = time.perf_counter() - t_start
 
-    objectives = [o for o in OBJECTIVES if o in pols]
+    objectives = [o for o in OBJECTIVES if o in pols] + sorted(set(pols) - set(OBJECTIVES))
     summary = measures.summarise(rows, objectives, seed)
     states_info = {}
     for size, cs in cands.items():
