@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from rmi_learn.data.schema import OBS
-from rmi_learn.sim.env import ENV_ID, SpongeSqueezeEnv
+from rmi_learn.data.schema import FORCE_LIMIT_N, OBS
+from rmi_learn.sim.env import DEFAULT_MAX_EPISODE_STEPS, ENV_ID, SpongeSqueezeEnv
+from rmi_learn.sim.goal import RELEASE_FRACTION
 from tiny_trial import tiny_config
 
 
@@ -20,8 +21,12 @@ def cfg() -> dict[str, Any]:
     return tiny_config()
 
 
-def test_env_checker_passes(cfg: dict[str, Any]) -> None:
-    env = SpongeSqueezeEnv(cfg, max_episode_steps=5)
+@pytest.mark.parametrize(
+    "kwargs",
+    [{}, {"action_mode": "force_velocity", "normalize_actions": True}],
+)
+def test_env_checker_passes(cfg: dict[str, Any], kwargs: dict[str, Any]) -> None:
+    env = SpongeSqueezeEnv(cfg, goal=0.5, render_mode="rgb_array", **kwargs)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # advice on unbounded/unnormalised Box spaces
         check_env(env)
@@ -36,19 +41,45 @@ def test_reset_hands_over_after_the_hold(cfg: dict[str, Any]) -> None:
     assert info["goal"] == pytest.approx(0.5 * info["M_L"])
     assert list(info["y"]) == list(OBS) and info["mask"].shape == (23,)
     assert env.substeps == 10 and env.control_period == pytest.approx(0.02)
+    assert env.metadata["render_fps"] == pytest.approx(50.0)
     # Masked channels hold 0 in the observation and None in the named values.
     for k, name in enumerate(OBS):
         if not info["mask"][k]:
             assert obs[k] == 0.0 and info["y"][name] is None
 
 
-def test_episode_squeezes_to_the_end(cfg: dict[str, Any]) -> None:
-    env = SpongeSqueezeEnv(cfg, max_episode_steps=200)
+def test_force_mode_is_the_default_and_the_force_loop_sets_v_cmd(cfg: dict[str, Any]) -> None:
+    env = SpongeSqueezeEnv(cfg, goal=0.5)
+    box = env.action_space
+    assert isinstance(box, gym.spaces.Box) and env.action_mode == "force"
+    assert box.shape == (1,) and box.low[0] == 0.0 and box.high[0] == FORCE_LIMIT_N
+    _, info0 = env.reset(seed=0)
+    # Far above the hold: the loop closes the pads, at most at v_close.
+    _, _, _, _, info = env.step(np.array([300.0], np.float32))
+    assert env.sim is not None and env.sim.action == (300.0, None)
+    assert info["F_target"] == 300.0
+    assert 0.0 < info["v_cmd"] <= cfg["controller"]["v_close"]
+    assert info["v_cmd"] == env.sim.observation()["v_cmd"]
+    # Below the load now on the pads: the loop opens them.
+    _, _, _, _, info = env.step(np.array([0.0], np.float32))
+    assert info["F_target"] == 0.0 and info["v_cmd"] < 0.0
+
+
+def test_force_velocity_episode_squeezes_to_the_end(cfg: dict[str, Any]) -> None:
+    env = SpongeSqueezeEnv(cfg, action_mode="force_velocity")
+    box = env.action_space
+    assert isinstance(box, gym.spaces.Box) and box.shape == (2,)
+    lo, hi = box.low, box.high
+    assert list(lo) == [0.0, -np.float32(cfg["controller"]["v_open"])]
+    assert list(hi) == [np.float32(FORCE_LIMIT_N), np.float32(cfg["controller"]["v_close"])]
     obs, info = env.reset(seed=0, options={"goal": 0.7})
     assert info["goal"] == 0.7
-    t0, rewards, terminated, truncated = info["time"], [], False, False
+    t0, terminated, truncated = info["time"], False, False
+    rewards: list[float] = []
     while not (terminated or truncated):
         obs, reward, terminated, truncated, info = env.step(np.array([150.0, 0.02], np.float32))
+        if not rewards:
+            assert info["v_cmd"] == pytest.approx(0.02)  # executed as given
         rewards.append(reward)
         assert reward == pytest.approx(-abs(info["M_L"] - 0.7))
         assert np.all(np.isfinite(obs))
@@ -59,54 +90,177 @@ def test_episode_squeezes_to_the_end(cfg: dict[str, Any]) -> None:
     assert env.sim.outcome()["final_water"] == info["M_L"]
 
 
-def test_truncation_state_option_and_determinism(cfg: dict[str, Any]) -> None:
-    env = SpongeSqueezeEnv(cfg, max_episode_steps=3)
+def test_normalised_actions_map_onto_the_physical_range(cfg: dict[str, Any]) -> None:
+    env = SpongeSqueezeEnv(cfg, action_mode="force_velocity", normalize_actions=True)
+    v_open, v_close = cfg["controller"]["v_open"], cfg["controller"]["v_close"]
+    box = env.action_space
+    assert isinstance(box, gym.spaces.Box) and box.shape == (2,)
+    assert np.all(box.low == -1.0) and np.all(box.high == 1.0)
+    np.testing.assert_allclose(env.physical_action([-1.0, -1.0]), [0.0, -v_open])
+    np.testing.assert_allclose(env.physical_action([1.0, 1.0]), [FORCE_LIMIT_N, v_close])
+    np.testing.assert_allclose(
+        env.physical_action([0.0, 0.0]), [FORCE_LIMIT_N / 2, (v_close - v_open) / 2]
+    )
+    # Out of range is clipped to [-1, 1] before the mapping.
+    np.testing.assert_allclose(env.physical_action([3.0, -7.0]), [FORCE_LIMIT_N, -v_open])
+    force = SpongeSqueezeEnv(cfg, goal=0.5, normalize_actions=True)
+    assert force.action_space.shape == (1,)
+    np.testing.assert_allclose(force.physical_action([0.5]), [0.75 * FORCE_LIMIT_N])
+    force.reset(seed=0)
+    _, _, _, _, info = force.step(np.array([-1.0], np.float32))
+    assert force.sim is not None and force.sim.action == (0.0, None) and info["F_target"] == 0.0
+    # Unnormalised physical actions are clipped the same way.
+    raw = SpongeSqueezeEnv(cfg, goal=0.5)
+    np.testing.assert_allclose(raw.physical_action([1e6]), [FORCE_LIMIT_N])
+    np.testing.assert_allclose(raw.physical_action([-5.0]), [0.0])
+
+
+def test_the_time_limit_wrapper_alone_truncates(cfg: dict[str, Any]) -> None:
+    assert gym.spec(ENV_ID).max_episode_steps == DEFAULT_MAX_EPISODE_STEPS
+    # One simulator step per control step: the tiny episode is 351 control steps long,
+    # more than the 200 the environment once cut every episode at.
+    kw: dict[str, Any] = dict(config=cfg, goal=0.5, control_dt=cfg["dt"])
+    a = np.array([100.0], np.float32)
+
+    def run(max_steps: int) -> tuple[int, bool, bool]:
+        env = gym.make(ENV_ID, max_episode_steps=max_steps, **kw)
+        env.reset(seed=0)
+        n, terminated, truncated = 0, False, False
+        while not (terminated or truncated):
+            _, _, terminated, truncated, _ = env.step(a)
+            n += 1
+        env.close()
+        return n, terminated, truncated
+
+    assert run(250) == (250, False, True)
+    n, terminated, truncated = run(1000)
+    assert terminated and not truncated and 250 < n < 1000
+
+
+def test_state_option_and_determinism(cfg: dict[str, Any]) -> None:
+    env = SpongeSqueezeEnv(cfg, goal=0.5)
     env.reset(seed=1)
     state = env.get_state()
-    a = np.array([30.0, 0.0], np.float32)
+    a = np.array([30.0], np.float32)
     out = [env.step(a) for _ in range(3)]
-    assert [o[3] for o in out] == [False, False, True]
-    env2 = SpongeSqueezeEnv(cfg, max_episode_steps=3, cache_handover=False)
+    assert not any(o[3] for o in out)  # the environment itself never truncates
+    env2 = SpongeSqueezeEnv(cfg, goal=0.5, cache_handover=False)
     env2.reset(options={"state": state})
     for o in out:
         o2 = env2.step(a)
         assert np.array_equal(o[0], o2[0]) and o[1] == o2[1]
-    with pytest.raises(ValueError):
-        env2.step(np.zeros(3, np.float32))
     with pytest.raises(RuntimeError):
         SpongeSqueezeEnv(cfg).step(a)
 
 
-def test_registered_with_gymnasium(cfg: dict[str, Any]) -> None:
-    env = gym.make(ENV_ID, config=cfg, max_episode_steps=2)
-    obs, _ = env.reset(seed=0)
-    assert obs.shape == (23,)
-    env.close()
+def test_default_goal_is_reached_by_a_strong_squeeze(cfg: dict[str, Any]) -> None:
+    env = SpongeSqueezeEnv(cfg)
+    _, info = env.reset(seed=0)
+    release = env.reference_release_kg
+    assert release is not None and release > 0.0
+    assert info["goal"] == pytest.approx(info["M_L"] - RELEASE_FRACTION * release)
+    water, gap = info["M_L"], info["M_L"] - info["goal"]
+    distances, least, terminated = [], water, False
+    while not terminated:
+        _, reward, terminated, truncated, info = env.step(np.array([350.0], np.float32))
+        assert not truncated
+        distances.append(-reward)
+        least = min(least, info["M_L"])
+    assert info["phase"] == "done" and info["failure"] is None
+    # The retained water passes the goal: the reward comes close to 0 on the way ...
+    assert min(distances) < 0.25 * gap
+    # ... and the squeeze goes on past it, so squeezing hardest is not the answer.
+    assert distances[-1] > 0.5 * gap
+    # The former default, 80 % of the water at hand-over, is out of such a squeeze's reach.
+    assert least > 0.8 * water
+
+
+def test_goal_options_take_precedence(cfg: dict[str, Any]) -> None:
+    env = SpongeSqueezeEnv(cfg, goal=0.6, release_fraction=0.2)
+    _, info = env.reset(seed=0)
+    assert info["goal"] == 0.6 and env.reference_release_kg is None  # nothing measured
+    _, info = env.reset(seed=0, options={"goal_fraction": 0.9})
+    assert info["goal"] == pytest.approx(0.9 * info["M_L"])
+    _, info = env.reset(seed=0, options={"goal": 0.3, "goal_fraction": 0.9})
+    assert info["goal"] == 0.3
+    frac = SpongeSqueezeEnv(cfg, goal_fraction=0.95)
+    _, info = frac.reset(seed=0)
+    assert info["goal"] == pytest.approx(0.95 * info["M_L"])
+
+
+def test_rgb_array_render_draws_the_pads_moving(cfg: dict[str, Any]) -> None:
+    env = SpongeSqueezeEnv(cfg, goal=0.5, render_mode="rgb_array")
+    env.reset(seed=0)
+    first = env.render()
+    assert first is not None and first.shape == (240, 320, 3) and first.dtype == np.uint8
+    assert len(np.unique(first.reshape(-1, 3), axis=0)) > 3  # not a blank frame
+    for _ in range(10):
+        env.step(np.array([350.0], np.float32))
+    later = env.render()
+    assert later is not None and later.shape == first.shape
+    assert np.count_nonzero(np.any(later != first, axis=2)) > 500
+    small = SpongeSqueezeEnv(cfg, goal=0.5, render_mode="rgb_array", render_shape=(60, 80))
+    small.reset(seed=0)
+    frame = small.render()
+    assert frame is not None and frame.shape == (60, 80, 3)
+
+
+def test_render_mode_none_draws_nothing(cfg: dict[str, Any]) -> None:
+    env = SpongeSqueezeEnv(cfg, goal=0.5)
+    env.reset(seed=0)
+    assert env.render() is None and env._view is None
+
+
+def test_make_vec_runs_two_envs(cfg: dict[str, Any]) -> None:
+    envs = gym.make_vec(
+        ENV_ID, num_envs=2, vectorization_mode="sync", config=cfg, goal=0.5, max_episode_steps=50
+    )
+    assert envs.action_space.shape == (2, 1) and envs.observation_space.shape == (2, 23)
+    obs, info = envs.reset(seed=0)  # seeds 0 and 1
+    assert obs.shape == (2, 23) and obs.dtype == np.float32
+    assert info["M_L"].shape == (2,) and info["M_L"][0] != info["M_L"][1]
+    for _ in range(2):
+        obs, reward, terminated, truncated, info = envs.step(np.full((2, 1), 200.0, np.float32))
+        assert obs.shape == (2, 23) and reward.shape == (2,)
+        assert terminated.shape == truncated.shape == (2,) and not terminated.any()
+    np.testing.assert_allclose(info["F_target"], [200.0, 200.0])
+    envs.close()
 
 
 @pytest.mark.parametrize(
     "kwargs",
     [{"goal_fraction": 1.5}, {"goal_fraction": -0.1}, {"goal_fraction": float("nan")},
-     {"goal": -0.01}, {"goal": float("inf")}],
+     {"goal": -0.01}, {"goal": float("inf")}, {"release_fraction": 1.5},
+     {"action_mode": "velocity"}, {"render_mode": "human"}],
 )  # fmt: skip
-def test_goals_out_of_range_are_refused(cfg: dict[str, Any], kwargs: dict[str, float]) -> None:
+def test_bad_options_are_refused(cfg: dict[str, Any], kwargs: dict[str, Any]) -> None:
     name = next(iter(kwargs))
     with pytest.raises(ValueError, match=name):
-        SpongeSqueezeEnv(cfg, **kwargs)  # type: ignore[arg-type]
+        SpongeSqueezeEnv(cfg, **kwargs)
 
 
-def test_actions_of_the_wrong_size_are_refused(cfg: dict[str, Any]) -> None:
-    # One value must not be broadcast against the two bounds into a whole action.
-    env = SpongeSqueezeEnv(cfg, max_episode_steps=5)
+@pytest.mark.parametrize(
+    ("mode", "bad"),
+    [("force", ([80.0, 0.0], [[80.0]], [float("nan")], [])),
+     ("force_velocity", ([80.0], [80.0, 0.0, 0.0], [[80.0, 0.0]], [float("nan"), 0.0]))],
+)  # fmt: skip
+def test_actions_of_the_wrong_size_are_refused(
+    cfg: dict[str, Any], mode: str, bad: tuple[list[Any], ...]
+) -> None:
+    # One value must not be broadcast against the bounds into a whole action.
+    env = SpongeSqueezeEnv(cfg, goal=0.5, action_mode=mode)
     env.reset(seed=0)
     sim, goal = env.sim, env.goal
+    assert sim is not None
     with pytest.raises(ValueError, match="goal_fraction"):
         env.reset(options={"goal_fraction": 2.0})
     assert env.sim is sim and env.goal == goal  # the episode goes on untouched
-    for bad in ([80.0], [80.0, 0.0, 0.0], [[80.0, 0.0]], [float("nan"), 0.0]):
-        with pytest.raises(ValueError, match="2 finite values"):
-            env.step(bad)
-    assert env.steps == 0
+    t0 = sim.time
+    n = len(env.action_names)
+    for a in bad:
+        with pytest.raises(ValueError, match=f"{n} finite values"):
+            env.step(np.array(a, np.float32))
+    assert sim.time == t0
     # In range or not, a well-formed action is clipped to the action space and taken.
-    env.step([1e6, 0.0])
-    assert env.steps == 1
+    env.step(np.full(n, 1e6, np.float32))
+    assert sim.time > t0 and sim.action is not None and sim.action[0] == FORCE_LIMIT_N

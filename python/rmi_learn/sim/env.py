@@ -3,25 +3,48 @@
 ``SpongeSqueezeEnv`` wraps one ``rmi_sph.Trial``. ``reset`` builds and soaks the
 sponge and runs the scripted controller through settle, close, ramp and hold (until the lift
 gate releases the lift), or starts from a saved state given in ``options``; from then on
-every ``step(action)`` applies u_t = [F_target (N), v_cmd (m/s)] for one control step of
-``CONTROL_DT`` = 20 ms (``round(0.02 / dt)`` simulator steps). The phase sequence (lift,
-waiting, squeeze, done), the lift gate and the gripper guards keep running underneath.
+every ``step(action)`` drives the pads for one control step of ``CONTROL_DT`` = 20 ms
+(``round(0.02 / dt)`` simulator steps). The phase sequence (lift, waiting, squeeze, done),
+the lift gate and the gripper guards keep running underneath.
+
+Actions (``action_mode``):
+
+- ``"force"`` (default): ``[F_target]`` in [0, ``FORCE_LIMIT_N``] N. The engine's force
+  loop (Eq. 5b) closes or opens the pads toward the target; the closing speed it chose is
+  reported as ``info["v_cmd"]``.
+- ``"force_velocity"``: ``[F_target (N), v_cmd (m/s)]``, v_cmd in [-v_open, v_close] of the
+  config's controller (positive closes), executed as given (within the gripper's guards).
+
+With ``normalize_actions=True`` every channel is in [-1, 1] and maps affinely onto its
+physical range (-1 the lower bound, 1 the upper). Out-of-range values are clipped to the
+action space (as gymnasium's ``ClipAction`` would); an action of the wrong shape or with a
+NaN or inf raises ``ValueError``.
 
 Observation: the 23 values of y_t in ``schema.OBS`` order as float32, with the pad loads
 averaged over the control step. ``v_res`` is undefined without contact (NaN in the engine
 and in run files); the observation holds 0 there and ``info["mask"]`` (bool, 23) is False
 for it, so a model can tell "no contact" from "zero slip". ``info["y"]`` has the values by
 name (None where undefined), plus ``phase``, ``time`` (s), ``M_L`` and ``M_expelled`` (kg),
-``goal`` (kg), ``failure`` (str or None) and ``unstable`` (bool).
+``F_target`` (N) and ``v_cmd`` (m/s) of the command the engine applied last, ``goal`` (kg),
+``failure`` (str or None) and ``unstable`` (bool).
 
 Reward: ``-|M_L - goal|`` in kg, the distance of the retained water to the goal mass.
-The goal is ``options["goal"]`` (kg) if given, else the constructor's ``goal``, else
-``goal_fraction`` times the water retained at hand-over.
+The goal is, first match wins: ``options["goal"]`` (kg), ``options["goal_fraction"]``, the
+constructor's ``goal``, its ``goal_fraction`` (times the water retained at hand-over), else
+the reachable default of :mod:`rmi_learn.sim.goal`: the water retained at hand-over less
+``release_fraction`` (0.5) of the water a constant 300 N squeeze releases from the hand-over
+of the config's seed to the end of the trial (measured once per environment, at the first
+reset that needs it).
 
 Episode end: ``terminated`` when the trial is over (squeeze completed, or a failure: the
 sponge dropped or slipped out, the gate timed out) or the simulation became unstable
-(``info["unstable"]``; the state stays at the last good step); ``truncated`` after
-``max_episode_steps`` control steps.
+(``info["unstable"]``; the state stays at the last good step). The environment never
+truncates: ``gym.make`` wraps it in ``TimeLimit`` with the registered
+``max_episode_steps`` (``DEFAULT_MAX_EPISODE_STEPS``, 10 s of control) unless given another.
+
+Rendering: ``render_mode="rgb_array"`` makes ``render()`` return a side view (x-z) of the
+particles, an (H, W, 3) uint8 image (:mod:`rmi_learn.sim.render`); with ``render_mode=None``
+it returns None and nothing is drawn.
 
 Registered as ``rmi/SpongeSqueeze-v0`` on import of this module::
 
@@ -43,31 +66,33 @@ from gymnasium import spaces
 
 import rmi_sph
 from rmi_learn.data.schema import CONTROL_DT, FORCE_LIMIT_N, OBS, PHASES
+from rmi_learn.sim.goal import (
+    REFERENCE_SQUEEZE_N,
+    RELEASE_FRACTION,
+    goal_mass,
+    reachable_goal,
+    reference_release,
+    unit_fraction,
+)
+from rmi_learn.sim.render import View, side_view, view_of
 
 ENV_ID = "rmi/SpongeSqueeze-v0"
+#: Control steps before ``gym.make``'s ``TimeLimit`` truncates (10 s at 20 ms).
+DEFAULT_MAX_EPISODE_STEPS = 500
+#: Action modes and the names of their channels.
+ACTION_MODES: dict[str, tuple[str, ...]] = {
+    "force": ("F_target",),
+    "force_velocity": ("F_target", "v_cmd"),
+}
+#: Default size (height, width) of a rendered frame (px).
+RENDER_SHAPE = (240, 320)
 
 ObsType = npt.NDArray[np.float32]
 ActType = npt.NDArray[np.float32]
 
 
-def _goal_mass(goal: Any) -> float:
-    """A goal retained water mass (kg): finite and not negative."""
-    g = float(goal)
-    if not (math.isfinite(g) and g >= 0.0):
-        raise ValueError(f"goal must be a retained water mass >= 0 kg, got {goal!r}")
-    return g
-
-
-def _goal_fraction(fraction: Any) -> float:
-    """A goal as a fraction of the water retained at hand-over: in [0, 1]."""
-    f = float(fraction)
-    if not 0.0 <= f <= 1.0:
-        raise ValueError(f"goal_fraction must be in [0, 1], got {fraction!r}")
-    return f
-
-
 class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
-    """Squeeze a lifted sponge to a goal retained-water mass.
+    """Squeeze a lifted sponge to a goal retained-water mass (see the module docstring).
 
     Parameters
     ----------
@@ -76,38 +101,49 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         ``rmi_sph.trial_config(10, 0.6, 40.0, 80.0)``.
     num_threads : int, default 1
         Engine threads per environment (results do not depend on it).
+    action_mode : {"force", "force_velocity"}, default "force"
+        ``[F_target]`` (N) tracked by the engine's force loop, or ``[F_target, v_cmd]``
+        (N, m/s) executed as given.
+    normalize_actions : bool, default False
+        If True the action space is [-1, 1] per channel, mapped affinely onto the physical
+        range.
     goal : float, optional
         Goal retained water mass (kg).
-    goal_fraction : float, default 0.8
+    goal_fraction : float, optional
         Goal as a fraction of the water retained at hand-over, when no goal is given.
+    release_fraction : float, default ``goal.RELEASE_FRACTION`` (0.5)
+        With neither goal nor goal_fraction: the part of the reference squeeze's release
+        (``goal.REFERENCE_SQUEEZE_N`` = 300 N) the default goal asks for, in [0, 1].
     handover : str, default "lift"
         Phase from which the agent drives the gripper; earlier phases run scripted.
-    max_episode_steps : int, default 200
-        Control steps before truncation.
     control_dt : float, default ``schema.CONTROL_DT`` (0.02 s)
         Duration of one control step (rounded to whole simulator steps).
-    regulate : bool, default False
-        If True, ``v_cmd`` is ignored and the engine's force regulation (Eq. 5b) closes the
-        pads toward ``F_target``.
     cache_handover : bool, default True
         Keep the hand-over state per seed, so repeated resets with one seed skip the
         scripted approach (the continuation is bit-identical either way).
+    render_mode : {None, "rgb_array"}, default None
+        ``"rgb_array"``: ``render()`` returns the side view of the particles.
+    render_shape : (int, int), default (240, 320)
+        Height and width of a rendered frame (px).
     """
 
-    metadata: dict[str, Any] = {"render_modes": []}
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 50}
 
     def __init__(
         self,
         config: Any = None,
         *,
         num_threads: int | None = 1,
+        action_mode: str = "force",
+        normalize_actions: bool = False,
         goal: float | None = None,
-        goal_fraction: float = 0.8,
+        goal_fraction: float | None = None,
+        release_fraction: float = RELEASE_FRACTION,
         handover: str = "lift",
-        max_episode_steps: int = 200,
         control_dt: float = CONTROL_DT,
-        regulate: bool = False,
         cache_handover: bool = True,
+        render_mode: str | None = None,
+        render_shape: tuple[int, int] = RENDER_SHAPE,
     ) -> None:
         super().__init__()
         # Checked once here (trial_config returns a checked, complete config); every episode
@@ -121,30 +157,55 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
             raise ValueError(
                 f"handover must be a phase from 'close' to 'squeeze', got {handover!r}"
             )
-        if max_episode_steps < 1:
-            raise ValueError("max_episode_steps must be at least 1")
+        if action_mode not in ACTION_MODES:
+            raise ValueError(
+                f"action_mode must be one of {list(ACTION_MODES)}, got {action_mode!r}"
+            )
         if not (control_dt > 0 and math.isfinite(control_dt)):
             raise ValueError("control_dt must be a positive time (s)")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.num_threads = num_threads
-        self.default_goal = None if goal is None else _goal_mass(goal)
-        self.goal_fraction = _goal_fraction(goal_fraction)
+        self.default_goal = None if goal is None else goal_mass(goal)
+        self.goal_fraction = (
+            None if goal_fraction is None else unit_fraction("goal_fraction", goal_fraction)
+        )
+        self.release_fraction = unit_fraction("release_fraction", release_fraction)
         self.handover = handover
-        self.max_episode_steps = int(max_episode_steps)
-        self.regulate = bool(regulate)
         self.cache_handover = cache_handover
         dt = float(self.config["dt"])
         #: Simulator steps per control step, and the resulting control period (s).
         self.substeps = max(1, round(control_dt / dt))
         self.control_period = self.substeps * dt
+        # Frames are one control step apart; an instance attribute, as it follows control_dt.
+        self.metadata = {**self.metadata, "render_fps": 1.0 / self.control_period}
+        self.render_mode = render_mode
+        self.render_shape = (int(render_shape[0]), int(render_shape[1]))
+
+        self.action_mode = action_mode
+        self.action_names = ACTION_MODES[action_mode]
         ctrl = self.config["controller"]
-        self._low = np.array([0.0, -float(ctrl["v_open"])], dtype=np.float32)
-        self._high = np.array([FORCE_LIMIT_N, float(ctrl["v_close"])], dtype=np.float32)
-        self.action_space = spaces.Box(low=self._low, high=self._high, dtype=np.float32)
+        bounds = {"F_target": (0.0, FORCE_LIMIT_N), "v_cmd": (-ctrl["v_open"], ctrl["v_close"])}
+        #: The physical action range, per channel (N or m/s).
+        self.action_low = np.array([bounds[n][0] for n in self.action_names], dtype=np.float64)
+        self.action_high = np.array([bounds[n][1] for n in self.action_names], dtype=np.float64)
+        self.normalize_actions = bool(normalize_actions)
+        k = len(self.action_names)
+        if self.normalize_actions:
+            self.action_space = spaces.Box(-1.0, 1.0, shape=(k,), dtype=np.float32)
+        else:
+            self.action_space = spaces.Box(
+                self.action_low.astype(np.float32), self.action_high.astype(np.float32)
+            )
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(len(OBS),), dtype=np.float32)
+
         self.sim: rmi_sph.Trial | None = None
         self.goal = 0.0
-        self.steps = 0
+        #: Water (kg) the reference squeeze releases from the config seed's hand-over;
+        #: measured at the first reset that needs the default goal.
+        self.reference_release_kg: float | None = None
         self._cache: dict[int, bytes] = {}
+        self._view: View | None = None
 
     # ----------------------------------------------------------------------------------
 
@@ -162,6 +223,12 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
             self._cache[seed] = sim.get_state()
         return sim
 
+    def _reference_release(self) -> float:
+        if self.reference_release_kg is None:
+            sim = self._scripted_approach(int(self.config["seed"]))
+            self.reference_release_kg = reference_release(sim, REFERENCE_SQUEEZE_N, self.substeps)
+        return self.reference_release_kg
+
     def _observe(
         self, record: Mapping[str, Any], unstable: bool = False
     ) -> tuple[ObsType, dict[str, Any]]:
@@ -176,11 +243,29 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
             "time": float(record["time"]),
             "M_L": float(record["M_L"]),
             "M_expelled": float(record["M_expelled"]),
+            "F_target": float(record["F_target"]),
+            "v_cmd": float(record["v_cmd"]),
             "goal": self.goal,
             "failure": self.sim.failure,
             "unstable": unstable,
         }
         return obs, info
+
+    def physical_action(self, action: Any) -> npt.NDArray[np.float64]:
+        """The physical action (N, m/s) an ``action`` of the action space stands for: clipped
+        to the space, then mapped from [-1, 1] when actions are normalised. Raises
+        ``ValueError`` for a wrong shape or a NaN or inf."""
+        a = np.asarray(action, dtype=np.float64)
+        # Shape first: clipping against the bounds would broadcast a single value into a
+        # full action.
+        k = len(self.action_names)
+        if a.shape != (k,) or not np.all(np.isfinite(a)):
+            names = ", ".join(self.action_names)
+            raise ValueError(f"action must be {k} finite values [{names}], got {action!r}")
+        if self.normalize_actions:
+            u = 0.5 * (np.clip(a, -1.0, 1.0) + 1.0)
+            return self.action_low + u * (self.action_high - self.action_low)
+        return np.clip(a, self.action_low, self.action_high)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -195,8 +280,16 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         super().reset(seed=seed)
         options = dict(options or {})
         # Checked before any work, so a bad option leaves the current episode as it was.
-        goal = _goal_mass(options["goal"]) if "goal" in options else self.default_goal
-        frac = _goal_fraction(options.get("goal_fraction", self.goal_fraction))
+        goal = goal_mass(options["goal"]) if "goal" in options else None
+        frac = (
+            unit_fraction("goal_fraction", options["goal_fraction"])
+            if "goal_fraction" in options
+            else None
+        )
+        if goal is None and frac is None:
+            goal, frac = self.default_goal, self.goal_fraction
+        use_default = goal is None and frac is None
+        release = self._reference_release() if use_default else 0.0
         if "state" in options:
             self.sim = rmi_sph.Trial.from_state(options["state"], num_threads=self.num_threads)
         elif "state_path" in options:
@@ -204,33 +297,40 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         else:
             self.sim = self._scripted_approach(int(self.config["seed"]) if seed is None else seed)
         record = self.sim.take_record()
-        self.goal = frac * float(record["M_L"]) if goal is None else goal
-        self.steps = 0
+        water = float(record["M_L"])
+        if goal is not None:
+            self.goal = goal
+        elif frac is not None:
+            self.goal = frac * water
+        else:
+            self.goal = reachable_goal(water, release, self.release_fraction)
+        self._view = view_of(self.sim, self.render_shape) if self.render_mode else None
         return self._observe(record)
 
     def step(self, action: ActType) -> tuple[ObsType, float, bool, bool, dict[str, Any]]:
-        """Apply u_t = [F_target, v_cmd] (clipped to the action space) for one control step."""
+        """Apply ``action`` (see the module docstring) for one control step."""
         if self.sim is None:
             raise RuntimeError("call reset() before step()")
-        # Shape first: clipping against the two bounds would broadcast a single value into
-        # a full action.
-        a = np.asarray(action, dtype=np.float64)
-        if a.shape != (2,) or not np.all(np.isfinite(a)):
-            raise ValueError(f"action must be 2 finite values [F_target, v_cmd], got {action!r}")
-        a = np.clip(a, self._low, self._high)
-        self.sim.set_action(float(a[0]), None if self.regulate else float(a[1]))
+        a = self.physical_action(action)
+        self.sim.set_action(float(a[0]), float(a[1]) if len(a) > 1 else None)
         unstable = False
         try:
             self.sim.step(self.substeps)
         except rmi_sph.SimulationUnstableError:
             unstable = True
         record = self.sim.take_record()
-        self.steps += 1
         obs, info = self._observe(record, unstable)
         reward = -abs(info["M_L"] - self.goal)
         terminated = bool(self.sim.finished or unstable)
-        truncated = bool(not terminated and self.steps >= self.max_episode_steps)
-        return obs, float(reward), terminated, truncated, info
+        return obs, float(reward), terminated, False, info
+
+    def render(self) -> npt.NDArray[np.uint8] | None:
+        """The side view of the particles (``render_mode="rgb_array"``), else None."""
+        if self.render_mode is None:
+            return None
+        if self.sim is None or self._view is None:
+            raise RuntimeError("call reset() before render()")
+        return side_view(self.sim, self._view)
 
     def get_state(self) -> bytes:
         """State of the running episode's simulation (for ``options={"state": ...}``)."""
@@ -243,4 +343,8 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
 
 
 if ENV_ID not in gym.registry:
-    gym.register(id=ENV_ID, entry_point="rmi_learn.sim.env:SpongeSqueezeEnv")
+    gym.register(
+        id=ENV_ID,
+        entry_point="rmi_learn.sim.env:SpongeSqueezeEnv",
+        max_episode_steps=DEFAULT_MAX_EPISODE_STEPS,
+    )
