@@ -163,6 +163,7 @@ OPTIONS: dict[str, dict[str, tuple[str, bool]]] = {
         "--deterministic": ('False', False),
         "--no-progress": ('False', False),
         "--channels": ('(64, 128, 256)', False),
+        "--wm": ('None', False),
     },
     "train-wm": {
         "--model": ('None', True),
