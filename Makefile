@@ -96,7 +96,7 @@ report: setup
 lint: setup
 	cargo fmt --all -- --check
 	cargo clippy --workspace --all-targets -- -D warnings
-	$(VENV)/bin/ruff check python tests benches studies tools
+	$(VENV)/bin/ruff check python tests benches studies tools examples
 
 # Rust benchmarks only; benches/compare_splishsplash.py needs pysplishsplash (see its docstring).
 bench:

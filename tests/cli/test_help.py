@@ -165,6 +165,7 @@ OPTIONS: dict[str, dict[str, tuple[str, bool]]] = {
         "--channels": ('(64, 128, 256)', False),
         "--tensorboard": ('False', False),
         "--config": ('None', False),
+        "--wm": ('None', False),
     },
     "train-wm": {
         "--model": ('None', True),

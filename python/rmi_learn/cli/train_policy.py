@@ -63,11 +63,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_tensorboard_option(parser)
     add_config_option(parser)
+    parser.add_argument(
+        "--wm",
+        type=Path,
+        default=None,
+        help="world-model run to store in the run (world_model/) for ranking",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     """Train one policy; prints the run summary as JSON. 0 on success, 2 on a user error
-    (output directory holds a run without --resume, or resume settings differ)."""
+    (output directory holds a run without --resume, resume settings differ, or the --wm
+    world model does not fit the dataset or the horizon)."""
     import torch
 
     from rmi_learn.policies.training import train_policy
@@ -98,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         channels=args.channels,
         tensorboard=args.tensorboard,
+        wm=args.wm,
     )
     print(json.dumps(summary, indent=2))
     return 0

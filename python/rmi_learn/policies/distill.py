@@ -225,7 +225,11 @@ def distill_policy(
     config = {
         "model": model_config(student.config, s_objective, history),
         "distill": distill,
-        "extra": {**(tcfg.get("extra") or {}), "data": str(Path(dataset).resolve())},
+        "extra": {
+            **(tcfg.get("extra") or {}),
+            "data": str(Path(dataset).resolve()),
+            "stats": ds.stats.to_json(),
+        },
     }
     tensors = {k: v for k, v in student.state_dict().items()}
     save_weights(tensors, out / "model.safetensors")

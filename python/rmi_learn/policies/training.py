@@ -8,6 +8,10 @@ most 80 epochs, patience 12, EMA with warm-up. Checkpoint selection: Diffusion P
 sampled action MAE on (a fixed subset of) the validation windows with EMA weights; flow
 matching by the validation flow MSE with EMA weights (fixed noise and times). The live-weight
 validation loss and, for diffusion, the unweighted x0 MSE per noise bucket are logged too.
+
+The run stores the dataset's standardisation statistics (``config["extra"]["stats"]``), so it
+acts without the dataset (:func:`rmi_learn.policies.load_policy`); with ``wm`` it also stores
+a copy of the world model that ranks its samples (``world_model/``).
 """
 
 from __future__ import annotations
@@ -50,7 +54,11 @@ def train_policy(
     deterministic: bool = False,
     progress: bool = True,
     channels: tuple[int, ...] = (64, 128, 256),
+<<<<<<< HEAD
     tensorboard: bool = False,
+=======
+    wm: str | Path | None = None,
+>>>>>>> h-policyobj
 ) -> dict[str, Any]:
     """Train one policy (``objective`` ``"diffusion"`` or ``"flow"``) on the dataset ``data``
     into the run directory ``out`` and return the run summary (see the module docstring).
@@ -58,12 +66,18 @@ def train_policy(
     ``history`` and ``horizon`` are the window lengths (control steps; the horizon H_pi must
     be divisible by 4), ``channels`` the UNet widths, ``ema_decay`` the cap of the EMA decay,
     ``snr_floor`` the floor of the min-SNR weight (diffusion), ``val_windows`` the size of
+<<<<<<< HEAD
     the evenly spaced validation subset that selects the checkpoint. Every epoch's training
     and validation losses and selection metrics go to ``metrics.jsonl``; ``tensorboard``
     also writes them as TensorBoard events (needs ``tensorboard``). Raises
+=======
+    the evenly spaced validation subset that selects the checkpoint. ``wm`` names a
+    world-model run to copy into the run's ``world_model/`` once training ends (checked
+    against the dataset's statistics and the horizon before training starts). Raises
+>>>>>>> h-policyobj
     :class:`~rmi_learn.errors.InputError` for a UNet shape it cannot build, a dataset without
-    training or validation windows, or an output directory that holds a run without
-    ``resume`` (or with other settings).
+    training or validation windows, a world model that does not fit, or an output directory
+    that holds a run without ``resume`` (or with other settings).
     """
     import torch
 
@@ -89,6 +103,11 @@ def train_policy(
     val = ds.windows("val", size_cm, history=history, horizon=horizon)
     if len(train) == 0 or len(val) == 0:
         raise InputError(f"need train and val windows (got {len(train)}, {len(val)})")
+    stats = ds.stats.to_json()
+    if wm is not None:
+        from rmi_learn.policies.policy import check_world_model
+
+        check_world_model(wm, stats, horizon)
     kwargs: dict[str, Any] = {"snr_floor": snr_floor} if objective == "diffusion" else {}
     obj = make_objective(objective, **kwargs)
     ema = EMA(max_decay=ema_decay)
@@ -181,6 +200,7 @@ def train_policy(
                 "goal": "[g, g - M_L(t)] / std(M_L); g = M_L(t + horizon)",
                 "water_std_kg": water_std,
                 "weights_for_sampling": "model.ema.safetensors",
+                "stats": stats,
             },
             hooks=[ema],
             resume=resume,
@@ -189,4 +209,8 @@ def train_policy(
     except ValueError as exc:
         raise InputError(exc) from exc
     summary: dict[str, Any] = trainer.fit()
+    if wm is not None:
+        from rmi_learn.policies.policy import attach_world_model
+
+        summary["world_model"] = str(attach_world_model(out, wm))
     return summary
