@@ -54,11 +54,8 @@ def train_policy(
     deterministic: bool = False,
     progress: bool = True,
     channels: tuple[int, ...] = (64, 128, 256),
-<<<<<<< HEAD
     tensorboard: bool = False,
-=======
     wm: str | Path | None = None,
->>>>>>> h-policyobj
 ) -> dict[str, Any]:
     """Train one policy (``objective`` ``"diffusion"`` or ``"flow"``) on the dataset ``data``
     into the run directory ``out`` and return the run summary (see the module docstring).
@@ -66,15 +63,11 @@ def train_policy(
     ``history`` and ``horizon`` are the window lengths (control steps; the horizon H_pi must
     be divisible by 4), ``channels`` the UNet widths, ``ema_decay`` the cap of the EMA decay,
     ``snr_floor`` the floor of the min-SNR weight (diffusion), ``val_windows`` the size of
-<<<<<<< HEAD
     the evenly spaced validation subset that selects the checkpoint. Every epoch's training
     and validation losses and selection metrics go to ``metrics.jsonl``; ``tensorboard``
-    also writes them as TensorBoard events (needs ``tensorboard``). Raises
-=======
-    the evenly spaced validation subset that selects the checkpoint. ``wm`` names a
+    also writes them as TensorBoard events (needs ``tensorboard``). ``wm`` names a
     world-model run to copy into the run's ``world_model/`` once training ends (checked
     against the dataset's statistics and the horizon before training starts). Raises
->>>>>>> h-policyobj
     :class:`~rmi_learn.errors.InputError` for a UNet shape it cannot build, a dataset without
     training or validation windows, a world model that does not fit, or an output directory
     that holds a run without ``resume`` (or with other settings).
