@@ -300,14 +300,16 @@ def test_example_drives_the_environment(
 
 def test_statistics_give_the_action_channels(runs: dict[str, Any]) -> None:
     stats = runs["stats"]
-    force_only = {**stats, "u_names": ["F_target"], "u_mean": [150.0], "u_std": [80.0]}
-    parsed, names = parse_stats(force_only, 1, "run")
-    assert names == ("F_target",) and parsed.u_std.tolist() == [80.0]
+    assert stats["u_names"] == ["F_target"]
+    both = {**stats, "u_names": ["F_target", "v_cmd"], "u_mean": [150.0, 0.0],
+            "u_std": [80.0, 0.01]}  # fmt: skip
+    parsed, names = parse_stats(both, 2, "run")
+    assert names == ("F_target", "v_cmd") and parsed.u_std.tolist() == [80.0, 0.01]
     with pytest.raises(InputError, match="1 action channels.*network outputs 2"):
-        parse_stats(force_only, 2, "run")
+        parse_stats(stats, 2, "run")
     with pytest.raises(InputError, match="observation channels"):
-        parse_stats({**stats, "z_names": stats["z_names"][::-1]}, 2, "run")
+        parse_stats({**stats, "z_names": stats["z_names"][::-1]}, 1, "run")
     with pytest.raises(InputError, match="'u_std' must be finite and > 0"):
-        parse_stats({**stats, "u_std": [1.0, 0.0]}, 2, "run")
+        parse_stats({**stats, "u_std": [0.0]}, 1, "run")
     with pytest.raises(InputError, match="'z_mean' missing"):
-        parse_stats({k: v for k, v in stats.items() if k != "z_mean"}, 2, "run")
+        parse_stats({k: v for k, v in stats.items() if k != "z_mean"}, 1, "run")
