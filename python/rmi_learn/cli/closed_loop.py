@@ -2,7 +2,7 @@
 terminal water error (see :mod:`rmi_learn.policies.closed_loop`).
 
 ``rmi closed-loop --runs SWEEP_DIR --chunks RANK_DIR --out DIR [--max-windows 4]
-[--threads 1] [--command both|force]``
+[--threads N] [--command both|force]``
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import json
 import sys
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import count
+from rmi_learn.cli.argtypes import add_threads, count, threads_of
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,17 +33,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=count(0),
         default=4,
         metavar="N",
-        help="windows per sponge size, evenly spaced (0: all; default 4)",
+        help="windows per sponge size, evenly spaced (0: all)",
     )
-    parser.add_argument(
-        "--threads", type=count(1), default=1, metavar="K", help="engine threads (default 1)"
-    )
+    add_threads(parser, "the engine")
     parser.add_argument(
         "--command",
         choices=("both", "force"),
         default="both",
         help="both: send F_target and v_cmd; force: send F_target, the engine regulates the "
-        "closing speed (default both)",
+        "closing speed",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -58,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
         args.chunks,
         args.out,
         max_windows=args.max_windows,
-        threads=args.threads,
+        threads=threads_of(args.threads),
         command=args.command,
         progress=not args.no_progress,
         log=lambda msg: print(msg, file=sys.stderr),
