@@ -12,8 +12,8 @@ from rmi_learn.cli import COMMANDS, build_parser, main
 
 #: Command -> option (first spelling; the dest of a positional or subcommand) -> (repr of its
 #: default, required). The command line of commit b0496b8 defined them; since then
-#: ``--threads`` defaults to every core on every command (sweep gained it), and simulate
-#: gained ``--quiet``.
+#: ``--threads`` defaults to every core on every command (sweep gained it), simulate
+#: gained ``--quiet``, and ``view`` was added.
 OPTIONS: dict[str, dict[str, tuple[str, bool]]] = {
     "analyze": {
         "--runs": ("None", True),
@@ -195,6 +195,11 @@ OPTIONS: dict[str, dict[str, tuple[str, bool]]] = {
         "--debug": ("False", False),
         "--no-progress": ("False", False),
     },
+    "view": {
+        "runs": ("None", True),
+        "--rrd": ("None", True),
+        "--every": ("1", False),
+    },
 }
 
 
@@ -281,7 +286,7 @@ def test_threads_means_the_same_on_every_command() -> None:
     """One convention: every command has ``--threads N``, an integer >= 1 whose absence
     means every core this process may use, and says what the threads run."""
     for command in sorted(OPTIONS):
-        if command in ("analyze", "dataset", "report"):
+        if command in ("analyze", "dataset", "report", "view"):
             continue  # single-threaded stages
         action = _actions(command)["--threads"]
         assert action.default is None and action.metavar == "N", command

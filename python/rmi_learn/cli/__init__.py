@@ -26,6 +26,7 @@ from rmi_learn.cli import (
     sweep,
     train_policy,
     train_wm,
+    view,
 )
 from rmi_learn.cli.helpformat import DefaultsHelpFormatter
 from rmi_learn.cli.version import VersionAction
@@ -51,6 +52,7 @@ COMMANDS: dict[str, tuple[ModuleType, str]] = {
     "control-bench": (control_bench, "goal-reaching benchmark of the controllers, executed"),
     "pipeline": (pipeline, "run every stage from sweep to report"),
     "report": (report, "write report.md and report.html"),
+    "view": (view, "write a rerun recording of trials: particles, pads, forces, water"),
 }
 
 
