@@ -55,7 +55,11 @@ lock: | $(VENV_PY)
 
 # `maturin develop` installs the runtime dependencies, copies the extension module into
 # python/rmi_sph/ and points the venv at python/ so edits to .py files need no reinstall.
+# The module is built against the stable ABI (one _rmi_sph.abi3.so serves CPython 3.10+);
+# an older per-interpreter build (_rmi_sph.cpython-3XX-*.so) would be imported before it,
+# so it goes first.
 $(BUILD_STAMP): $(TOOLS_STAMP) $(RUST_INPUTS) pyproject.toml
+	rm -f python/rmi_sph/_rmi_sph.*.so python/rmi_sph/_rmi_sph.*.pyd
 	VIRTUAL_ENV=$(abspath $(VENV)) $(VENV)/bin/maturin develop --release
 	touch $@
 

@@ -113,3 +113,29 @@ def test_report_draws_the_training_curves_of_tiny_runs(
     only_arx = tmp_path / "arx.png"
     assert not training_figure([("arx", tmp_path / "wm" / "arx")], only_arx)
     assert not only_arx.exists()
+
+
+def test_report_html_embeds_its_figures(tmp_path: Path) -> None:
+    """report.html is one file: every figure is a data URI holding the PNG written beside
+    report.md, and no image is linked by a relative path."""
+    import base64
+    import re
+
+    rows = [{"method": "Original controller action", "8": 1.5, "10": 2.0, "12": 3.25}]
+    _write(tmp_path / "tables" / "rank" / "table3_ranking.json", {"rows": rows, "k": 8})
+    md, page = write_report(tmp_path)
+    sources = re.findall(r'<img src="([^"]*)"', page.read_text())
+    assert sources, "the report should hold the ranking figure"
+    assert all(src.startswith("data:image/png;base64,") for src in sources), sources
+    png = (tmp_path / "report" / "figures" / "fig_ranking.png").read_bytes()
+    embedded = [base64.b64decode(src.split(",", 1)[1]) for src in sources]
+    assert png in embedded
+    # The Markdown report keeps linking the figure files beside it.
+    assert "](figures/fig_ranking.png)" in md.read_text()
+
+
+def test_doc_links_figures_when_not_embedding() -> None:
+    d = Doc()
+    d.h(1, "t")
+    d.img("figures/a.png", "a")
+    assert '<img src="figures/a.png"' in d.html("t")

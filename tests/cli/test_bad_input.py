@@ -16,10 +16,12 @@ from tiny_trial import tiny_config
 
 
 def tiny_config_file(directory: Path, **changes: object) -> list[str]:
-    """``--config FILE`` of the tests' tiny trial (about 1 s), with ``changes``."""
+    """``--config FILE`` of the tests' tiny trial (about 1 s), with ``changes``, and
+    ``--quiet``: on a loaded machine the trial may outlast the progress line's interval,
+    and these tests count the lines on stderr."""
     path = directory / "trial.json"
     path.write_text(json.dumps({**tiny_config(), **changes}))
-    return ["--config", str(path)]
+    return ["--config", str(path), "--quiet"]
 
 
 def one_line(capsys: pytest.CaptureFixture[str], command: str) -> str:

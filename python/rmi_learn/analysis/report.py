@@ -2,16 +2,19 @@
 paper's, every figure, the run-grid summary, the physical validation, versions and config.
 
 The report is assembled as a list of blocks (headings, paragraphs, tables, figures) and
-rendered twice, to ``report.md`` and to a self-contained ``report.html`` (figures as files
-beside it), so the two never disagree. Inputs are the files the stages wrote (see
+rendered twice, to ``report.md`` (figures as files beside it) and to a self-contained
+``report.html`` (the same figures embedded as data URIs: the one file can be mailed or
+archived on its own), so the two never disagree. Inputs are the files the stages wrote (see
 :mod:`rmi_learn.pipeline`); a stage that has not run yet leaves a note in its section instead
 of breaking the report. The paper's numbers come from ``paper_reference.json``.
 """
 
 from __future__ import annotations
 
+import base64
 import html
 import json
+import mimetypes
 import os
 import platform
 import re
@@ -19,7 +22,7 @@ import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from importlib import resources
+from importlib import metadata, resources
 from pathlib import Path
 from typing import Any
 
@@ -91,7 +94,11 @@ class Doc:
                     out += [f"*{note}*", ""]
         return "\n".join(out)
 
-    def html(self, title: str) -> str:
+    def html(self, title: str, embed_from: Path | None = None) -> str:
+        """The document as one HTML page. With ``embed_from``, each figure is read from that
+        directory (its path is relative to it) and embedded as a ``data:`` URI, so the page
+        needs no other file; without it, figures are linked by their relative paths."""
+
         def inline(text: str) -> str:
             # Markdown-style `code` and **bold** only: the report writes nothing else inline.
             t = html.escape(text)
@@ -113,8 +120,9 @@ class Doc:
                 body.append(f"<pre>{html.escape(val)}</pre>")
             elif kind == "img":
                 rel, cap = val
+                src = rel if embed_from is None else data_uri(embed_from / rel)
                 body.append(
-                    f'<figure><img src="{html.escape(rel)}" alt="{html.escape(cap)}">'
+                    f'<figure><img src="{html.escape(src)}" alt="{html.escape(cap)}">'
                     f"<figcaption>{inline(cap)}</figcaption></figure>"
                 )
             else:
@@ -138,6 +146,12 @@ class Doc:
             + "\n".join(body[1:])
             + "</body></html>\n"
         )
+
+
+def data_uri(path: Path) -> str:
+    """The file at ``path`` as a ``data:`` URI (base64; media type from its suffix)."""
+    kind = mimetypes.guess_type(path.name)[0] or "application/octet-stream"
+    return f"data:{kind};base64," + base64.b64encode(path.read_bytes()).decode("ascii")
 
 
 _CSS = """
@@ -717,12 +731,13 @@ def _versions() -> list[list[str]]:
         ["platform", platform.platform()],
         ["CPU cores", str(os.cpu_count())],
     ]
-    for mod in ("numpy", "polars", "torch", "matplotlib"):
+    # Read from the installed distributions' metadata: importing torch only to print its
+    # version would make the report need it.
+    for dist in ("numpy", "polars", "torch", "matplotlib"):
         try:
-            m = __import__(mod)
-            rows.append([mod, str(getattr(m, "__version__", "?"))])
-        except ImportError:
-            rows.append([mod, "not installed"])
+            rows.append([dist, metadata.version(dist)])
+        except metadata.PackageNotFoundError:
+            rows.append([dist, "not installed"])
     return rows
 
 
@@ -785,7 +800,8 @@ def write_report(
     md, page = rdir / "report.md", rdir / "report.html"
     title = next((v for k, v in doc.blocks if k == "h1"), "rmi report")
     atomic_write_bytes(md, lambda f: f.write(doc.markdown().encode("utf-8")))
-    atomic_write_bytes(page, lambda f: f.write(doc.html(title).encode("utf-8")))
+    page_text = doc.html(title, embed_from=rdir)
+    atomic_write_bytes(page, lambda f: f.write(page_text.encode("utf-8")))
     # Stale figures of an older layout would confuse a reader browsing the folder.
     keep = {v[0].split("/")[-1] for k, v in doc.blocks if k == "img"}
     for old in (rdir / FIG_SUBDIR).glob("*.png") if (rdir / FIG_SUBDIR).exists() else []:

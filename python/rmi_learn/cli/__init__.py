@@ -26,7 +26,16 @@ from rmi_learn.cli import (
     sweep,
     train_policy,
     train_wm,
+    view,
 )
+from rmi_learn.cli.helpformat import DefaultsHelpFormatter
+from rmi_learn.cli.version import VersionAction
+
+#: The packages of the ``learn`` extra: a command that needs one of them and finds it missing
+#: says how to install it (status 1, as for other missing optional backends).
+LEARN_EXTRA = frozenset({"torch", "safetensors"})
+#: How to install them.
+LEARN_INSTALL = "pip install 'rmi[learn]'"
 
 #: command name -> (module, one-line help)
 COMMANDS: dict[str, tuple[ModuleType, str]] = {
@@ -35,23 +44,28 @@ COMMANDS: dict[str, tuple[ModuleType, str]] = {
     "dataset": (dataset, "resample runs to 20 ms and build learning windows"),
     "analyze": (analyze, "physical analysis of a run grid: figures and numbers"),
     "train-wm": (train_wm, "train a world model"),
-    "eval-wm": (eval_wm, "evaluate world models, write Tables II-IV"),
+    "eval-wm": (eval_wm, "evaluate world models, write the forecast-error tables"),
     "train-policy": (train_policy, "train a goal-conditioned UNet policy"),
     "distill-policy": (distill_policy, "distil a policy into a 1-2 step real-time student"),
-    "rank": (rank, "rank policy samples with the world model, write Tables III, V, S1"),
+    "rank": (rank, "rank policy samples with a world model, write the ranking tables"),
     "closed-loop": (closed_loop, "execute ranked actions in the simulator"),
     "control-bench": (control_bench, "goal-reaching benchmark of the controllers, executed"),
     "pipeline": (pipeline, "run every stage from sweep to report"),
     "report": (report, "write report.md and report.html"),
+    "view": (view, "write a rerun recording of trials: particles, pads, forces, water"),
 }
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``rmi`` parser with one subparser per command of :data:`COMMANDS`."""
     parser = argparse.ArgumentParser(prog="rmi", description="Robotic Multiphase Interaction")
+    parser.add_argument("--version", action=VersionAction)
     # Not dest="command": `rmi closed-loop --command` would overwrite the command's name.
     sub = parser.add_subparsers(dest="rmi_command", required=True, metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
-        p = sub.add_parser(name, help=help_text, description=help_text)
+        p = sub.add_parser(
+            name, help=help_text, description=help_text, formatter_class=DefaultsHelpFormatter
+        )
         module.add_arguments(p)
     return parser
 
@@ -89,6 +103,14 @@ def main(argv: list[str] | None = None) -> int:
     module = COMMANDS[args.rmi_command][0]
     try:
         return int(module.run(args) or 0)
+    except ModuleNotFoundError as exc:
+        if (exc.name or "").partition(".")[0] not in LEARN_EXTRA:
+            raise
+        print(
+            f"rmi {args.rmi_command}: needs {exc.name}, which is not installed: {LEARN_INSTALL}",
+            file=sys.stderr,
+        )
+        return 1
     except (Exception, KeyboardInterrupt) as exc:
         status = report(args.rmi_command, exc)
         if status is None:

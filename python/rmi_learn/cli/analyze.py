@@ -29,14 +29,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--run-id",
         default=None,
-        help="run for Fig. 4, e.g. size_cm=10/porosity=0.6/F_hold=110/F_squeeze=200/seed=0 "
+        help="run drawn in the single-run figure (forces and retained water against time), "
+        "e.g. size_cm=10/porosity=0.6/F_hold=110/F_squeeze=200/seed=0 "
         "(default: the completed run closest to the grid's median parameters)",
     )
     parser.add_argument(
         "--bootstrap",
         type=count(1),
         default=2000,
-        help="cluster bootstrap resamples (default 2000)",
+        help="cluster bootstrap resamples",
     )
     parser.add_argument("--seed", type=seed, default=0, help="bootstrap random seed")
 

@@ -2,7 +2,7 @@
 terminal water error (see :mod:`rmi_learn.policies.closed_loop`).
 
 ``rmi closed-loop --runs SWEEP_DIR --chunks RANK_DIR --out DIR [--max-windows 4]
-[--threads 1]``
+[--threads N]``
 
 The chunks are force setpoints, executed through the engine's force loop.
 """
@@ -14,7 +14,7 @@ import json
 import sys
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import count
+from rmi_learn.cli.argtypes import add_threads, count, threads_of
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,11 +35,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=count(0),
         default=4,
         metavar="N",
-        help="windows per sponge size, evenly spaced (0: all; default 4)",
+        help="windows per sponge size, evenly spaced (0: all)",
     )
-    parser.add_argument(
-        "--threads", type=count(1), default=1, metavar="K", help="engine threads (default 1)"
-    )
+    add_threads(parser, "the engine")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -53,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
         args.chunks,
         args.out,
         max_windows=args.max_windows,
-        threads=args.threads,
+        threads=threads_of(args.threads),
         progress=not args.no_progress,
         log=lambda msg: print(msg, file=sys.stderr),
     )

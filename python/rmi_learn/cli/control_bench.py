@@ -3,7 +3,7 @@
 
 ``rmi control-bench --runs SWEEP_DIR --data DATASET --wm WM_DIR --policy POLICY_DIR --out DIR
 [--states-per-size 4] [--goals-per-state 2] [--setpoints 5] [--k 8] [--receding 8]
-[--scorers wt,ac-gru] [--goal-kg G ...] [--split test] [--seed 0] [--threads 1]``
+[--scorers wt,ac-gru] [--goal-kg G ...] [--split test] [--seed 0] [--threads N]``
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import count
+from rmi_learn.cli.argtypes import add_threads, count, threads_of
 
 
 def _names(text: str) -> list[str]:
@@ -63,16 +63,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         ("--receding", 0, 8, "re-plan every N control steps (0: no receding controller)"),
     )
     for flag, low, default, text in counts:
-        parser.add_argument(
-            flag, type=count(low), default=default, metavar="N", help=f"{text} (default {default})"
-        )
+        parser.add_argument(flag, type=count(low), default=default, metavar="N", help=text)
     parser.add_argument(
         "--scorers",
         type=_names,
         default=None,
         metavar="A,B",
-        help="world models that rank (names under WM_DIR, wt = transformer; default every one "
-        "that can rank chunks; the first is the receding controller's)",
+        help="world models that rank (names under WM_DIR, wt = transformer; the first is the "
+        "receding controller's) (default: every one that can rank chunks)",
     )
     parser.add_argument(
         "--goal-kg",
@@ -86,12 +84,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--split",
         choices=("test", "val"),
         default="test",
-        help="held-out runs the start states come from (default test; val when test is empty)",
+        help="held-out runs the start states come from (val when test is empty)",
     )
-    parser.add_argument("--seed", type=count(0), default=0, help="draws and sampling (default 0)")
-    parser.add_argument(
-        "--threads", type=count(1), default=1, metavar="K", help="engine threads (default 1)"
-    )
+    parser.add_argument("--seed", type=count(0), default=0, help="seed of draws and sampling")
+    add_threads(parser, "the engine and torch")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -101,7 +97,8 @@ def run(args: argparse.Namespace) -> int:
 
     from rmi_learn.control import run_control_bench
 
-    torch.set_num_threads(args.threads)
+    threads = threads_of(args.threads)
+    torch.set_num_threads(threads)
     summary = run_control_bench(
         args.runs,
         args.data,
@@ -117,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
         goal_kg=args.goal_kg,
         split=args.split,
         seed=args.seed,
-        threads=args.threads,
+        threads=threads,
         progress=not args.no_progress,
         log=lambda msg: print(msg, file=sys.stderr),
     )

@@ -22,7 +22,12 @@ def _build_args(p: argparse.ArgumentParser, sub: bool) -> None:
     p.add_argument("--runs", default=none, metavar="DIR", help="directory of run files")
     p.add_argument("--out", default=none, metavar="DIR", help="dataset directory")
     seed_default: object = argparse.SUPPRESS if sub else 0
-    p.add_argument("--seed", type=seed, default=seed_default, help="split seed (default 0)")
+    p.add_argument(
+        "--seed",
+        type=seed,
+        default=seed_default,
+        help="seed of the train/val/test split (default: 0)",
+    )
 
 
 #: Formats ``rmi dataset export`` writes.
@@ -34,12 +39,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     build options may stand before or after ``build``."""
     _build_args(parser, sub=False)
     sub = parser.add_subparsers(dest="dataset_command", metavar="{build,info,export}")
-    b = sub.add_parser("build", help="resample runs to 20 ms, split, standardise, cache")
+    # The subcommands lay out their help as their parent does.
+    b = sub.add_parser(
+        "build",
+        help="resample runs to 20 ms, split, standardise, cache",
+        formatter_class=parser.formatter_class,
+    )
     _build_args(b, sub=True)
-    i = sub.add_parser("info", help="print counts and statistics of a built dataset")
+    i = sub.add_parser(
+        "info",
+        help="print counts and statistics of a built dataset",
+        formatter_class=parser.formatter_class,
+    )
     i.add_argument("dir", metavar="DIR", help="dataset directory")
     i.add_argument("--json", action="store_true", help="print the full JSON summary")
-    e = sub.add_parser("export", help="write a built dataset in another format (LeRobot v2.1)")
+    e = sub.add_parser(
+        "export",
+        help="write a built dataset in another format (LeRobot v2.1)",
+        formatter_class=parser.formatter_class,
+    )
     e.add_argument(
         "--format", choices=EXPORT_FORMATS, default="lerobot", help="output format (lerobot)"
     )

@@ -7,7 +7,7 @@ import argparse
 import json
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import count, positive, seed
+from rmi_learn.cli.argtypes import add_threads, count, positive, seed, threads_of
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -17,18 +17,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="new student run directory")
     parser.add_argument("--steps", type=int, choices=(1, 2), default=1,
                         help="student sampler steps")  # fmt: skip
-    parser.add_argument("--epochs", type=count(1), default=20)
-    parser.add_argument("--batch-size", type=count(1), default=64)
-    parser.add_argument("--lr", type=positive, default=1e-4)
+    parser.add_argument("--epochs", type=count(1), default=20, help="training epochs")
+    parser.add_argument("--batch-size", type=count(1), default=64, help="pairs per batch")
+    parser.add_argument("--lr", type=positive, default=1e-4, help="learning rate")
     parser.add_argument("--max-windows", type=count(1), default=4096,
                         help="training windows that give (noise, teacher chunk) pairs")  # fmt: skip
-    parser.add_argument("--pairs-per-window", type=count(1), default=1)
-    parser.add_argument("--val-windows", type=count(1), default=256)
+    parser.add_argument("--pairs-per-window", type=count(1), default=1,
+                        help="(noise, teacher chunk) pairs per training window")  # fmt: skip
+    parser.add_argument("--val-windows", type=count(1), default=256,
+                        help="validation windows (evenly spaced subset)")  # fmt: skip
     parser.add_argument("--teacher-steps", type=count(1), default=None,
                         help="teacher sampler steps (default: the teacher run's)")  # fmt: skip
     parser.add_argument("--weights", default="model.ema", help="teacher weights file stem")
-    parser.add_argument("--seed", type=seed, default=0)
-    parser.add_argument("--threads", type=count(1), default=None, help="torch CPU threads")
+    parser.add_argument("--seed", type=seed, default=0, help="seed of draws and initialisation")
+    add_threads(parser, "torch")
     parser.add_argument("--no-progress", action="store_true", help="no per-epoch lines")
 
 
@@ -38,8 +40,7 @@ def run(args: argparse.Namespace) -> int:
 
     from rmi_learn.policies.distill import distill_policy
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    torch.set_num_threads(threads_of(args.threads))
     summary = distill_policy(
         args.policy,
         args.dataset,

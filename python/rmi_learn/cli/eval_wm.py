@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import count, device
+from rmi_learn.cli.argtypes import add_threads, count, device, threads_of
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,16 +32,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--data", required=True, metavar="DIR", help="built dataset directory")
     parser.add_argument("--out", required=True, metavar="DIR", help="directory for the tables")
-    parser.add_argument("--split", default="test", choices=("train", "val", "test"))
-    parser.add_argument("--batch-size", type=count(1), default=256)
+    parser.add_argument(
+        "--split", default="test", choices=("train", "val", "test"), help="windows evaluated"
+    )
+    parser.add_argument("--batch-size", type=count(1), default=256, help="windows per batch")
     parser.add_argument(
         "--max-windows",
         type=count(1),
         default=None,
-        help="evaluate at most this many evenly spaced windows per size",
+        help="evaluate at most this many evenly spaced windows per size (default: all)",
     )
-    parser.add_argument("--threads", type=count(1), default=1, help="torch CPU threads")
-    parser.add_argument("--device", type=device, default="cpu")
+    add_threads(parser, "torch")
+    parser.add_argument("--device", type=device, default="cpu", help="torch device")
     parser.add_argument(
         "--no-latency", action="store_true", help="skip the 8 chunks x 32 steps latency benchmark"
     )
@@ -53,8 +55,7 @@ def run(args: argparse.Namespace) -> int:
 
     from rmi_learn.world_models.evaluation import eval_wm
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    torch.set_num_threads(threads_of(args.threads))
     paths = eval_wm(
         args.runs,
         args.data,

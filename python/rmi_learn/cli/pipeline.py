@@ -15,7 +15,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import count
+from rmi_learn.cli.argtypes import add_threads, threads_of
 from rmi_learn.errors import InputError
 from rmi_learn.pipeline.config import PRESETS
 
@@ -26,27 +26,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     src.add_argument("--preset", choices=PRESETS, help="a built-in pipeline")
     src.add_argument("--config", type=Path, metavar="FILE", help="a pipeline JSON file")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory")
+    # The sweep stage runs the preset's workers x threads_per_run; every later stage runs
+    # one call at a time with this many threads.
+    add_threads(parser, "each stage after the sweep (engine and torch)")
     parser.add_argument(
-        "--threads",
-        type=count(1),
-        default=None,
-        help="torch threads per stage (default: all cores)",
+        "--only", nargs="+", metavar="STAGE", help="run just these stages (default: every one)"
     )
-    parser.add_argument("--only", nargs="+", metavar="STAGE", help="run just these stages")
-    parser.add_argument("--redo", nargs="+", metavar="STAGE", help="forget these stages' markers")
+    parser.add_argument(
+        "--redo",
+        nargs="+",
+        metavar="STAGE",
+        help="forget these stages' markers, so they run again (default: none)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the pipeline; 0 when every stage finished, 1 when one failed, 2 on bad input."""
-    import os
-
     from rmi_learn.pipeline import PipelineError, load_preset, run_pipeline
 
     try:
         cfg = load_preset(preset=args.preset) if args.preset else load_preset(path=args.config)
     except (OSError, ValueError) as exc:
         raise InputError(exc) from exc
-    threads = args.threads or os.cpu_count() or 1
+    threads = threads_of(args.threads)
     try:
         run_pipeline(cfg, args.out, threads=threads, only=args.only, redo=args.redo)
     except ValueError as exc:

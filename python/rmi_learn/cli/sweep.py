@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import count
+from rmi_learn.cli.argtypes import add_threads, count, threads_of
 from rmi_learn.data.sweep import PRESETS
 from rmi_learn.errors import InputError
 
@@ -18,13 +18,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     src.add_argument("--grid", metavar="FILE", help="a grid JSON file (same keys as the presets)")
     parser.add_argument("--out", required=True, metavar="DIR", help="output directory")
-    parser.add_argument("--backend", choices=("local", "ray"), default="local")
+    parser.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help="local: a process pool on this machine; ray: one Ray task per run (a Ray started "
+        "here, or the cluster of $RAY_ADDRESS)",
+    )
+    add_threads(parser, "the whole sweep on this machine: --workers x --threads-per-run")
     parser.add_argument(
         "--workers",
         type=count(0),
         default=None,
-        help="parallel runs (local: processes, default cores // threads-per-run; 0 runs in "
-        "this process)",
+        help="parallel runs (local: processes; 0 runs in this process) "
+        "(default: --threads // --threads-per-run, at least 1)",
     )
     parser.add_argument(
         "--threads-per-run", type=count(1), default=1, metavar="K", help="engine threads per run"
@@ -33,7 +40,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--retry-failed", action="store_true", help="rerun runs recorded as failed or unstable"
     )
     parser.add_argument(
-        "--limit", type=count(0), default=None, help="run only the first N grid points"
+        "--limit",
+        type=count(0),
+        default=None,
+        metavar="N",
+        help="run only the first N grid points (default: every point)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
@@ -57,13 +68,17 @@ def run(args: argparse.Namespace) -> int:
         df = build_index(args.out)
         print(f"index: {df.height} runs -> {args.out}/index.parquet")
         return 0
+    workers = args.workers
+    # A Ray cluster sizes itself; a local pool (or a Ray started here) fills --threads.
+    if workers is None and (args.backend == "local" or args.threads is not None):
+        workers = max(1, threads_of(args.threads) // args.threads_per_run)
     res = sweep(
         args.out,
         preset=args.preset,
         grid_file=args.grid,
         limit=args.limit,
         backend=args.backend,
-        workers=args.workers,
+        workers=workers,
         threads_per_run=args.threads_per_run,
         retry_failed=args.retry_failed,
         progress=not args.no_progress,

@@ -11,7 +11,17 @@ import argparse
 import json
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import count, counts, device, non_negative, positive, real, seed
+from rmi_learn.cli.argtypes import (
+    add_threads,
+    count,
+    counts,
+    device,
+    non_negative,
+    positive,
+    real,
+    seed,
+    threads_of,
+)
 from rmi_learn.cli.options_file import add_config_option
 from rmi_learn.cli.train_wm import add_tensorboard_option
 
@@ -21,18 +31,36 @@ OPTIONS_FILE = True
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """CLI options of ``rmi train-policy``."""
-    parser.add_argument("--objective", choices=("diffusion", "flow"), required=True)
+    parser.add_argument(
+        "--objective",
+        choices=("diffusion", "flow"),
+        required=True,
+        help="denoising diffusion or flow matching",
+    )
     parser.add_argument("--data", required=True, type=Path, help="built dataset directory")
     parser.add_argument("--out", required=True, type=Path, help="run directory (new or --resume)")
-    parser.add_argument("--size-cm", type=int, default=None, help="train on one sponge size")
-    parser.add_argument("--epochs", type=count(1), default=80)
-    parser.add_argument("--batch-size", type=count(1), default=64)
-    parser.add_argument("--lr", type=positive, default=1e-4)
-    parser.add_argument("--weight-decay", type=non_negative, default=1e-6)
-    parser.add_argument("--patience", type=count(1), default=12)
-    parser.add_argument("--seed", type=seed, default=0)
-    parser.add_argument("--history", type=count(1), default=16)
-    parser.add_argument("--horizon", type=count(4), default=32, help="H_pi, divisible by 4")
+    parser.add_argument(
+        "--size-cm", type=int, default=None, help="train on one sponge size (default: all sizes)"
+    )
+    parser.add_argument("--epochs", type=count(1), default=80, help="maximum epochs")
+    parser.add_argument("--batch-size", type=count(1), default=64, help="windows per batch")
+    parser.add_argument("--lr", type=positive, default=1e-4, help="learning rate")
+    parser.add_argument(
+        "--weight-decay", type=non_negative, default=1e-6, help="AdamW weight decay"
+    )
+    parser.add_argument(
+        "--patience", type=count(1), default=12, help="early-stopping patience (epochs)"
+    )
+    parser.add_argument("--seed", type=seed, default=0, help="seed of initialisation and draws")
+    parser.add_argument(
+        "--history", type=count(1), default=16, help="observed control steps before a chunk"
+    )
+    parser.add_argument(
+        "--horizon",
+        type=count(4),
+        default=32,
+        help="control steps of one action chunk, divisible by 4",
+    )
     parser.add_argument(
         "--ema-decay", type=real(0.0, 1.0, high_open=True), default=0.999, help="EMA decay cap"
     )
@@ -48,18 +76,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=1024,
         help="validation windows (evenly spaced subset) for the selection metric",
     )
-    parser.add_argument("--device", type=device, default="cpu")
-    parser.add_argument("--threads", type=count(1), default=None, help="torch CPU threads")
-    parser.add_argument("--max-steps-per-epoch", type=count(1), default=None)
+    parser.add_argument("--device", type=device, default="cpu", help="torch device")
+    add_threads(parser, "torch")
+    parser.add_argument(
+        "--max-steps-per-epoch",
+        type=count(1),
+        default=None,
+        help="cap the optimiser steps per epoch (default: every window once)",
+    )
     parser.add_argument("--resume", action="store_true", help="continue the run in --out")
     parser.add_argument("--debug", action="store_true", help="shrink the run to seconds")
-    parser.add_argument("--deterministic", action="store_true")
+    parser.add_argument(
+        "--deterministic", action="store_true", help="use torch's deterministic algorithms only"
+    )
     parser.add_argument("--no-progress", action="store_true", help="no tqdm bars")
     parser.add_argument(
         "--channels",
         type=counts,
         default=(64, 128, 256),
-        help="UNet channel widths, comma separated, multiples of 8 (default 64,128,256)",
+        help="UNet channel widths, comma separated, multiples of 8",
     )
     add_tensorboard_option(parser)
     add_config_option(parser)
@@ -79,8 +114,7 @@ def run(args: argparse.Namespace) -> int:
 
     from rmi_learn.policies.training import train_policy
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    torch.set_num_threads(threads_of(args.threads))
     summary = train_policy(
         args.objective,
         args.data,

@@ -16,7 +16,7 @@ import argparse
 import json
 from typing import Any
 
-from rmi_learn.cli.argtypes import count, device, positive, seed
+from rmi_learn.cli.argtypes import add_threads, count, device, positive, seed, threads_of
 from rmi_learn.cli.options_file import add_config_option
 from rmi_learn.data.schema import SPONGE_SIZES_CM
 from rmi_learn.errors import InputError
@@ -30,7 +30,7 @@ from rmi_learn.world_models.training import (
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``rmi train-wm``."""
-    parser.add_argument("--model", required=True, choices=MODEL_CHOICES)
+    parser.add_argument("--model", required=True, choices=MODEL_CHOICES, help="forecaster")
     parser.add_argument("--data", required=True, metavar="DIR", help="built dataset directory")
     parser.add_argument("--out", required=True, metavar="DIR", help="run output directory")
     parser.add_argument(
@@ -38,13 +38,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         choices=SPONGE_SIZES_CM,
         default=None,
-        help="train on one sponge size (cm); default: all sizes",
+        help="train on one sponge size (cm) (default: all sizes)",
     )
     parser.add_argument(
         "--state-groups",
         default="ALL",
         choices=GROUP_CHOICES,
-        help="input state groups (paper Eq. 7); default ALL",
+        help="observation channels the model sees: LS (the water: retained mass, saturation, "
+        "pore and sponge volume), +G (gripper width and forces), +C (contact and friction), "
+        "ALL (also the residual slip speed)",
     )
     parser.add_argument(
         "--shuffle-actions",
@@ -57,10 +59,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=[],
         metavar="KEY=VALUE",
         help="architecture override passed to the model constructor, e.g. d_model=128 "
-        "(JSON value; repeatable); defaults follow the paper",
+        "(JSON value; repeatable) (default: each model's standard architecture)",
     )
-    parser.add_argument("--epochs", type=count(1), default=40, help="maximum epochs (default 40)")
-    parser.add_argument("--patience", type=count(1), default=8, help="early-stopping patience")
+    parser.add_argument("--epochs", type=count(1), default=40, help="maximum epochs")
+    parser.add_argument(
+        "--patience", type=count(1), default=8, help="early-stopping patience (epochs)"
+    )
     parser.add_argument(
         "--tf-epochs",
         type=count(0),
@@ -72,48 +76,47 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=positive,
         default=None,
         help="loss weight of the retained-water channel (default: 8 for the Transformer, "
-        "1 otherwise, as in the paper)",
+        "1 otherwise)",
     )
     parser.add_argument(
         "--huber-delta",
         type=positive,
         default=HUBER_DELTA,
-        help="Huber loss threshold in standardised units (default 1, torch's): errors "
-        "above it are weighed linearly, below it quadratically",
+        help="Huber loss threshold in standardised units (torch's): errors above it are "
+        "weighed linearly, below it quadratically",
     )
     parser.add_argument(
         "--loss-scale",
         choices=LOSS_SCALES,
         default=None,
-        help="state (the paper's loss; the Transformer's default): errors in units of each "
-        "channel's standardised level; change (the GRU and MLP models' default): in units "
+        help="state: errors in units of each channel's standardised level; change: in units "
         "of each channel's RMS change over the horizon in the training windows, so that "
-        "slowly moving channels such as retained water count",
+        "slowly moving channels such as retained water count (default: state for the "
+        "Transformer, change for the GRU and MLP models)",
     )
-    parser.add_argument("--batch-size", type=count(1), default=128)
+    parser.add_argument("--batch-size", type=count(1), default=128, help="windows per batch")
     parser.add_argument(
         "--steps-per-epoch",
         type=count(1),
         default=None,
         help="cap the optimiser steps per epoch (each epoch then sees a fresh random subset "
-        "of the windows); default: every window once",
+        "of the windows) (default: every window once)",
     )
-    parser.add_argument("--lr", type=positive, default=None, help="learning rate (model default)")
+    parser.add_argument(
+        "--lr", type=positive, default=None, help="learning rate (default: the model's)"
+    )
     parser.add_argument(
         "--val-windows",
         type=count(1),
         default=4096,
         help="validate on at most this many evenly spaced windows",
     )
-    parser.add_argument("--seed", type=seed, default=0)
-    parser.add_argument("--deterministic", action="store_true")
-    parser.add_argument("--device", type=device, default="cpu")
+    parser.add_argument("--seed", type=seed, default=0, help="seed of initialisation and draws")
     parser.add_argument(
-        "--threads",
-        type=count(1),
-        default=1,
-        help="torch CPU threads (default 1: the cores are shared)",
+        "--deterministic", action="store_true", help="use torch's deterministic algorithms only"
     )
+    parser.add_argument("--device", type=device, default="cpu", help="torch device")
+    add_threads(parser, "torch")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out")
     parser.add_argument("--debug", action="store_true", help="tiny run that takes seconds")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -141,8 +144,7 @@ def run(args: argparse.Namespace) -> int:
 
     from rmi_learn.world_models.training import train
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    torch.set_num_threads(threads_of(args.threads))
     summary = train(
         model=args.model,
         model_args=_parse_model_args(args.model_arg),

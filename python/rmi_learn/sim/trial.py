@@ -14,11 +14,13 @@ import contextlib
 import os
 import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from rmi_learn.data.schema import size_cm
 from rmi_learn.errors import InputError
+from rmi_learn.sim.progress import TrialProgress
 
 #: Steps per ``Trial.step`` call when no frames are written (only the chunk of Ctrl-C
 #: checks and progress; results do not depend on it).
@@ -60,6 +62,7 @@ def simulate(
     include_boundary: bool = False,
     surface: bool = False,
     overwrite: bool = False,
+    progress: Callable[[TrialProgress], None] | None = None,
 ) -> dict[str, Any]:
     """Run one scripted trial stepping an ``rmi_sph.Trial`` from Python.
 
@@ -71,6 +74,8 @@ def simulate(
     An ``out_dir`` that holds a finished run (``run.parquet``) is refused with
     :class:`~rmi_learn.errors.InputError` unless ``overwrite``, which first removes that
     run's outputs (:data:`OUTPUTS`), so no frame of the old run mixes with the new ones.
+    ``progress`` is called with a :class:`~rmi_learn.sim.progress.TrialProgress` after
+    every chunk of steps (see :class:`~rmi_learn.sim.progress.ProgressLine`).
     When a write fails (a full disk, a read-only directory) the ``OSError`` names the path,
     and the outputs of this call are removed, with ``out_dir`` if this call created it.
 
@@ -93,8 +98,14 @@ def simulate(
         _remove_outputs(out)
     try:
         return _simulate_into(
-            sim, out, t0, vtk_every, binary=binary, include_boundary=include_boundary,
+            sim,
+            out,
+            t0,
+            vtk_every,
+            binary=binary,
+            include_boundary=include_boundary,
             surface=surface,
+            progress=progress,
         )
     except OSError:
         # Best effort: the error that stopped the writes may stop the clean-up too, and a
@@ -115,6 +126,7 @@ def _simulate_into(
     binary: bool,
     include_boundary: bool,
     surface: bool,
+    progress: Callable[[TrialProgress], None] | None,
 ) -> dict[str, Any]:
     """Step ``sim`` to its end writing into ``out`` (see :func:`simulate`)."""
     import rmi_sph
@@ -137,6 +149,9 @@ def _simulate_into(
         taken = sim.step(chunk, stop_at_finish=True)
         if writer is not None and taken > 0:
             writer.write(sim)
+        if progress is not None:
+            wall = time.perf_counter() - t0
+            progress(TrialProgress(sim.phase, sim.time, limit, sim.step_count, wall))
         if not sim.finished and sim.time > limit:
             raise rmi_sph.StateError(f"trial did not finish within its time limit of {limit:.2f} s")
     columns = sim.records()
