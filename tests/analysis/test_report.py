@@ -3,6 +3,7 @@ run, our numbers beside the paper's, the training curves, HTML escaping."""
 
 from __future__ import annotations
 
+import base64
 import json
 import math
 import struct
@@ -107,7 +108,7 @@ def test_report_draws_the_training_curves_of_tiny_runs(
     md, page = write_report(tmp_path)
     fig = tmp_path / "report" / "figures" / "fig_training.png"
     assert "](figures/fig_training.png)" in md.read_text()
-    assert 'src="figures/fig_training.png"' in page.read_text()
+    assert base64.b64encode(fig.read_bytes()).decode() in page.read_text()  # embedded
     # Two panels side by side (3.3 in each at 120 dpi): ARX has none.
     assert png_size(fig) == (792, 312)
     only_arx = tmp_path / "arx.png"
