@@ -14,11 +14,11 @@ seconds. Output layout under ``OUT``::
 
     sweep/        run files (hive tree), index.parquet         (rmi sweep)
     dataset/      resampled frames, split, statistics          (rmi dataset build)
-    analysis/     Figs. 4-6 and the squeeze association        (rmi analyze)
+    analysis/     water removed, lift success, squeeze association (rmi analyze)
     wm/<name>/    one directory per trained world model        (rmi train-wm)
-    tables/wm/    Tables II, IV and the lookahead diagnostic   (rmi eval-wm)
+    tables/wm/    forecast errors, state groups, lookahead     (rmi eval-wm)
     policy/<obj>/ diffusion and flow-matching UNets            (rmi train-policy)
-    tables/rank/  Tables III, V, S1 and the ranked chunks      (rmi rank)
+    tables/rank/  ranking tables and the ranked chunks         (rmi rank)
     closed_loop/  real terminal water error in the simulator   (rmi closed-loop)
     control/      goal-reaching benchmark, when the preset has "control" (rmi control-bench)
     report/       report.md, report.html, figures              (rmi report)
@@ -299,7 +299,7 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
         ),
         Stage(
             "analysis",
-            "physical analysis (Figs. 4-6)",
+            "physical analysis (water removed per phase, lift success, squeeze association)",
             lambda: [
                 Call(
                     ["analyze", "--runs", str(sweep_dir), "--out", str(out / "analysis")],
@@ -312,9 +312,9 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
     if cfg.ablations:
         stages.append(Stage("ablations", "train the ablation models", train_wm(ABLATION_MODELS)))
     stages += [
-        Stage("eval-wm", "evaluate the world models (Tables II, IV, diagnostic)", eval_wm),
+        Stage("eval-wm", "evaluate the world models (forecast errors)", eval_wm),
         Stage("policies", "train the diffusion and flow-matching policies", policies),
-        Stage("rank", "rank policy samples with W_T (Tables III, V, S1)", rank),
+        Stage("rank", "rank policy samples with W_T", rank),
         Stage("closed-loop", "execute ranked chunks in the simulator", closed),
         Stage(
             "report",
