@@ -69,8 +69,8 @@ def test_layout_and_info(exported: Path, synthetic_dataset_dir: Path) -> None:
     feats = info["features"]
     assert feats["observation.state"]["shape"] == [23]
     assert feats["observation.state"]["names"] == list(OBS)
-    assert feats["action"]["names"] == ["F_target", "v_cmd"]
-    assert feats["action"]["shape"] == [2]
+    assert feats["action"]["names"] == ["F_target"]
+    assert feats["action"]["shape"] == [1]
     tasks = read_jsonl(exported / "meta" / "tasks.jsonl")
     assert tasks == [{"task_index": 0, "task": lerobot.TASK}]
     files = sorted((exported / "data").rglob("*.parquet"))
@@ -81,7 +81,8 @@ def test_layout_and_info(exported: Path, synthetic_dataset_dir: Path) -> None:
         table = pl.read_parquet(path)
         assert table.columns == list(feats)
         for name, ft in feats.items():
-            if ft["shape"] != [1]:
+            # The state and the action are vectors whatever their length (one action here).
+            if ft["shape"] != [1] or name in ("action", "observation.state"):
                 assert table[name].dtype == pl.List(pl.Float32)
                 assert vectors(table, name).shape == (table.height, ft["shape"][0])
             else:
@@ -127,7 +128,7 @@ def test_episodes_are_the_runs_with_their_frames_and_split(
         assert (mask == finite).all()
         assert (state[~finite] == 0.0).all()
         assert (state[finite] == y[finite].astype(np.float32)).all()
-        u = rows.select("F_target", "v_cmd").to_numpy().astype(np.float32)
+        u = rows.select("F_target").to_numpy().astype(np.float32)
         assert (vectors(table, "action") == u).all()
         index += n
     # The synthetic runs lose contact, so some v_res are NaN: the fill was exercised.
@@ -149,13 +150,14 @@ def test_action_channels_come_from_the_dataset(synthetic_dataset_dir: Path, tmp_
     data = tmp_path / "ds"
     shutil.copytree(synthetic_dataset_dir, data)
     stats = json.loads((data / "stats.json").read_text())
-    stats["u_names"] = ["F_target"]
+    assert stats["u_names"] == ["F_target"]
+    stats["u_names"] = ["F_target", "v_cmd"]  # both recorded commands are in the frames
     (data / "stats.json").write_text(json.dumps(stats))
     out = lerobot.export_lerobot(data, tmp_path / "export")
     feats = json.loads((out / "meta" / "info.json").read_text())["features"]
-    assert feats["action"] == {"dtype": "float32", "shape": [1], "names": ["F_target"]}
+    assert feats["action"] == {"dtype": "float32", "shape": [2], "names": ["F_target", "v_cmd"]}
     table = pl.read_parquet(next((out / "data").rglob("*.parquet")))
-    assert vectors(table, "action").shape == (table.height, 1)
+    assert vectors(table, "action").shape == (table.height, 2)
 
 
 def one_line(capsys: pytest.CaptureFixture[str]) -> str:
