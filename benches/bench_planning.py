@@ -2,7 +2,11 @@
 
 One decision = encode the history/goal once, draw K chunks of H_pi = 32 commands in one
 batch, destandardise and clip forces, roll the K chunks through a world model and take the
-argmin of J. Weights are random (the cost of a forward pass does not depend on them).
+argmin of J. Weights are random (the cost of a forward pass does not depend on them), or,
+with ``--run OUT``, those of a pipeline output: its ``policy/diffusion`` and ``policy/flow``,
+``wm/transformer`` and ``wm/ac-gru``, its dataset's statistics and a test window's history;
+a distilled student beside a policy (``policy/flow-1step``, from ``rmi distill-policy``) is
+timed too, at its own step count.
 
 Settings compared, interleaved decision by decision so that a shared machine's load falls
 on all of them alike:
@@ -18,7 +22,7 @@ per second, and with ``--breakdown`` where one decision's time goes (condition e
 one UNet pass over the K samples in eager torch and on the fast path, with its FLOPs, and
 each scorer alone).
 
-    .venv/bin/python benches/bench_planning.py [--threads 2] [--reps 30] [--breakdown]
+    .venv/bin/python benches/bench_planning.py [--threads 2] [--reps 30] [--breakdown] [--run OUT]
 """
 
 from __future__ import annotations
@@ -75,6 +79,7 @@ def main() -> None:
     p.add_argument("--no-reference", action="store_true", help="skip the reference planner")
     p.add_argument("--breakdown", action="store_true", help="time the parts of a decision")
     p.add_argument("--json", action="store_true", help="print one JSON line per setting")
+    p.add_argument("--run", default=None, help="a pipeline output with trained policies and models")
     args = p.parse_args()
 
     import torch
@@ -89,31 +94,43 @@ def main() -> None:
 
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
-    net = PolicyUNet(UNetConfig()).eval()
-    wms = {"wt": build({"kind": "transformer"}).eval(), "gru": build({"kind": "ac-gru"}).eval()}
-    scorers = {name: world_model_scorer(wms[name]) for name in args.scorers.split(",")}
-    std = Standardiser(
-        z_mean=torch.zeros(18), z_std=torch.full((18,), 0.1),
-        u_mean=torch.tensor([150.0, 0.0]), u_std=torch.tensor([80.0, 0.01]),
-    )  # fmt: skip
-    hist = torch.randn(1, 16, 23)
-    mask = torch.ones(1, 16, 23)
-    goal = torch.tensor([0.5])
-    water = torch.tensor([1.0])
     paper = {"diffusion": 16, "flow": 20}
     make = {"diffusion": DiffusionObjective, "flow": FlowObjective}
+    objectives = args.objectives.split(",")
+    students: dict[str, tuple[Any, int]] = {}
+    if args.run is None:
+        net = PolicyUNet(UNetConfig()).eval()
+        nets = {obj: net for obj in objectives}
+        wms = {"wt": build({"kind": "transformer"}).eval(),
+               "gru": build({"kind": "ac-gru"}).eval()}  # fmt: skip
+        std = Standardiser(
+            z_mean=torch.zeros(18), z_std=torch.full((18,), 0.1),
+            u_mean=torch.tensor([150.0]), u_std=torch.tensor([80.0]),
+        )  # fmt: skip
+        hist = torch.randn(1, 16, 23)
+        mask = torch.ones(1, 16, 23)
+        goal = torch.tensor([0.5])
+        water = torch.tensor([1.0])
+    else:
+        nets, students, wms, std, (hist, mask, goal, water) = trained(args.run, objectives)
+    scorers = {name: world_model_scorer(wms[name]) for name in args.scorers.split(",")}
 
     planners: list[tuple[dict[str, Any], Any]] = []
-    for obj in args.objectives.split(","):
+    for obj in objectives:
         for sc_name, scorer in scorers.items():
             if not args.no_reference:
-                ref = Planner(net, make[obj](), scorer, std, k=args.k)
+                ref = Planner(nets[obj], make[obj](), scorer, std, k=args.k)
                 planners.append(({"path": "ref", "objective": obj, "steps": paper[obj],
                                   "scorer": sc_name}, ref))  # fmt: skip
             for s in args.fast_steps.split(","):
                 n = paper[obj] if s == "ref" else int(s)
-                fast = RealtimePlanner(net, make[obj](), scorer, std, k=args.k, steps=n)
+                fast = RealtimePlanner(nets[obj], make[obj](), scorer, std, k=args.k, steps=n)
                 planners.append(({"path": "fast", "objective": obj, "steps": n,
+                                  "scorer": sc_name}, fast))  # fmt: skip
+            if obj in students:
+                snet, n = students[obj]
+                fast = RealtimePlanner(snet, make[obj](), scorer, std, k=args.k, steps=n)
+                planners.append(({"path": "student", "objective": obj, "steps": n,
                                   "scorer": sc_name}, fast))  # fmt: skip
 
     header = {
@@ -148,7 +165,37 @@ def main() -> None:
                   f"{rec['decisions_per_s']:5.1f} decisions/s")  # fmt: skip
 
     if args.breakdown:
-        breakdown(net, wms, hist, mask, args, FastSampler, FlowObjective)
+        breakdown(nets[objectives[0]], wms, hist, mask, args, FastSampler, FlowObjective)
+
+
+def trained(run: str, objectives: list[str]) -> tuple[Any, ...]:
+    """The trained inputs of a pipeline output ``run``: policies by objective, distilled
+    students by objective (network, steps), scorers, statistics and one test window's
+    (history, mask, goal, water now), standardised, with a goal 5 g below the water now."""
+    from pathlib import Path
+
+    from rmi_learn.data.dataset import load_dataset
+    from rmi_learn.policies.checkpoint import load_policy
+    from rmi_learn.policies.ranking import Standardiser
+    from rmi_learn.world_models import load
+
+    root = Path(run)
+    nets = {obj: load_policy(root / "policy" / obj)[0].eval() for obj in objectives}
+    students = {}
+    for obj in objectives:
+        d = root / "policy" / f"{obj}-1step"
+        if (d / "config.json").exists():
+            net, objective, _ = load_policy(d)
+            students[obj] = (net.eval(), int(objective.n_sample_steps))
+    wms = {"wt": load(root / "wm" / "transformer")[0], "gru": load(root / "wm" / "ac-gru")[0]}
+    ds = load_dataset(root / "dataset")
+    std = Standardiser.from_stats(ds.stats)
+    ws = ds.windows("test", None, 16, 32)
+    item = ws[len(ws) // 2]
+    water_now = item["water_now"].view(1)
+    goal = water_now - 0.005 / std.z_std[0]
+    window = (item["hist"][None], item["hist_mask"][None], goal, water_now)
+    return nets, students, wms, std, window
 
 
 def breakdown(net: Any, wms: dict[str, Any], hist: Any, mask: Any, args: Any,
@@ -159,9 +206,9 @@ def breakdown(net: Any, wms: dict[str, Any], hist: Any, mask: Any, args: Any,
 
     k, reps = args.k, max(args.reps, 10)
     goal_vec = torch.randn(1, 2)
-    x = torch.randn(k, 32, 2)
+    x = torch.randn(k, 32, 1)
     t = torch.full((k,), 10.0)
-    u = torch.randn(k, 32, 2)
+    u = torch.randn(k, 32, 1)
     sampler = fast_sampler(net, flow(), 1)
     parts: dict[str, float] = {}
     with torch.inference_mode():
