@@ -893,3 +893,10 @@ def test_gru_model_copies_and_pickles_after_native_inference() -> None:
         assert getattr(m, "_native_cache", None) is None
         with torch.no_grad():
             assert torch.equal(m(hist[:1], mask[:1], chunks)["z"], ref["z"])
+
+
+@pytest.mark.parametrize("kind", ["ac-gru", "transformer", "ac-mlp", "arx", "setpoint-readout"])
+def test_latency_runs_each_model_on_its_own_action_chunks(kind: str) -> None:
+    from rmi_learn.world_models.evaluation import benchmark_latency
+
+    assert benchmark_latency(build({"kind": kind}), n_chunks=2, repeats=2) > 0.0

@@ -21,7 +21,7 @@ import torch
 
 from rmi_learn.data.schema import CONTROL_DT, SPONGE_SIZES_CM
 from rmi_learn.errors import input_errors
-from rmi_learn.world_models.common import FORCE, N_FRIC, WATER
+from rmi_learn.world_models.common import FORCE, N_FRIC, N_U, WATER
 
 #: Forecast steps reported in the tables (0.16, 0.32, 0.64, 1.28 s at 20 ms).
 HORIZON_STEPS: tuple[int, ...] = (8, 16, 32, 64)
@@ -160,7 +160,7 @@ def latency_inputs(
     return (
         torch.randn(n_hist, history, 23),
         torch.ones(n_hist, history, 23),
-        torch.randn(n_chunks, h, 2),
+        torch.randn(n_chunks, h, N_U),
     )
 
 
