@@ -91,9 +91,8 @@ NPZ_KEYS: tuple[str, ...] = (
     "selected",
     "index",
 )
-#: Engine limits of an external action: force (N) and closing speed (m/s).
+#: Engine limits of an external force setpoint (N).
 FORCE_RANGE = (0.0, FORCE_LIMIT_N)
-SPEED_RANGE = (-1.0, 1.0)
 #: Channels a run file averages over the record interval; the replay check skips them
 #: because ``Trial.observation()`` gives the loads of the last step.
 AVERAGED_CHANNELS = frozenset({"F_meas", "F_L", "F_R", "alpha_F"})
@@ -383,15 +382,6 @@ def check_anchor(sim: Any, track: RunTrack, window: Window) -> None:
         )
 
 
-def clip_command(force: float, speed: float) -> tuple[float, float]:
-    """An action clipped to what ``Trial.set_action`` accepts: F in [0, FORCE_LIMIT_N] N, v in
-    [-1, 1] m/s (the engine's guards clip v further to [-v_open, v_close])."""
-    return (
-        float(min(max(force, FORCE_RANGE[0]), FORCE_RANGE[1])),
-        float(min(max(speed, SPEED_RANGE[0]), SPEED_RANGE[1])),
-    )
-
-
 def execute_chunk(
     sim: Any,
     state: bytes,
@@ -429,7 +419,7 @@ def execute_chunk(
     traj = np.empty((chunk.shape[0], 2))
     try:
         for i, f in enumerate(chunk[:, 0].tolist()):
-            sim.set_action(clip_command(f, 0.0)[0])
+            sim.set_action(min(max(f, FORCE_RANGE[0]), FORCE_RANGE[1]))
             sim.step(substeps)
             rec = sim.take_record()
             traj[i] = (rec["M_L"], rec["F_meas"])
@@ -958,7 +948,6 @@ __all__ = [
     "Window",
     "check_anchor",
     "check_window",
-    "clip_command",
     "control_substeps",
     "execute_chunk",
     "load_chunks",

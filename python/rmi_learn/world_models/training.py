@@ -243,7 +243,13 @@ def train(
             teacher=batch if tf > 0 else None,
             tf_prob=tf,
         )
-        loss, logs = wm_loss(
+        loss, logs = weighted_loss(m, o, batch)
+        logs["tf_prob"] = tf
+        return loss, logs
+
+    def weighted_loss(m: Any, o: dict[str, torch.Tensor], batch: dict[str, torch.Tensor]) -> Any:
+        """The training loss of ``m``'s outputs ``o``: (loss, logs)."""
+        return wm_loss(
             o,
             batch,
             channel_weight=cw.to(o["z"].device),
@@ -252,19 +258,9 @@ def train(
             classify=m.classify,
             huber_delta=huber_delta,
         )
-        logs["tf_prob"] = tf
-        return loss, logs
 
     def rollout_loss(o: dict[str, torch.Tensor], batch: dict[str, torch.Tensor]) -> Any:
-        return wm_loss(
-            o,
-            batch,
-            channel_weight=cw.to(o["z"].device),
-            channel_scale=None if scale is None else scale.to(o["z"].device),
-            z_keep=net.z_keep,
-            classify=net.classify,
-            huber_delta=huber_delta,
-        )[0]
+        return weighted_loss(net, o, batch)[0]
 
     val_loss = rollout_loss
 
