@@ -28,7 +28,12 @@ from rmi_learn.control.execute import (
     state_fingerprint,
 )
 from rmi_learn.data.runs import atomic_write_bytes, atomic_write_json, json_safe
-from rmi_learn.data.schema import ACTIONS, CONTROL_ACTIONS, CONTROL_DT, FORCE_LIMIT_N
+from rmi_learn.data.schema import (
+    CONTROL_ACTION_INDEX,
+    CONTROL_ACTIONS,
+    CONTROL_DT,
+    FORCE_LIMIT_N,
+)
 from rmi_learn.errors import InputError
 
 #: Phases in which the robot acts on the water (anchors are drawn there).
@@ -440,7 +445,7 @@ class Bench:
         wnow = s.water_now_std.expand(n_goals).contiguous()
         goal_kg_t = self.std.water_to_kg(g_std)
         recorded_u = torch.as_tensor(
-            tr.actions[c.t : c.t + h, [ACTIONS.index(a) for a in CONTROL_ACTIONS]],
+            tr.actions[c.t : c.t + h, list(CONTROL_ACTION_INDEX)],
             dtype=torch.float32,
         )
         for pname in self.policies:

@@ -42,6 +42,8 @@ ACTIONS: tuple[str, ...] = tuple(rmi_sph.ACTION_NAMES)
 #: rather than a second command: a chunk of both could ask for a speed the loop would not
 #: produce, and only its setpoints can be executed from a new state.
 CONTROL_ACTIONS: tuple[str, ...] = ("F_target",)
+#: Columns of ``CONTROL_ACTIONS`` within the recorded ``ACTIONS``.
+CONTROL_ACTION_INDEX: tuple[int, ...] = tuple(ACTIONS.index(a) for a in CONTROL_ACTIONS)
 
 #: Recorded outside y_t, for analysis only (never model inputs): time (s), phase, the
 #: skeleton's centre-of-mass velocity (m/s), the lift gate, expelled water (kg), lift height (m).

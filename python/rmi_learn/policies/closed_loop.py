@@ -67,7 +67,14 @@ import polars as pl
 from rmi_learn import __version__
 from rmi_learn.data.dataset import resample_run, select_learning_rows
 from rmi_learn.data.runs import atomic_write_bytes, atomic_write_json, json_safe, read_run
-from rmi_learn.data.schema import ACTIONS, CONTROL_ACTIONS, CONTROL_DT, FORCE_LIMIT_N, OBS
+from rmi_learn.data.schema import (
+    ACTIONS,
+    CONTROL_ACTION_INDEX,
+    CONTROL_ACTIONS,
+    CONTROL_DT,
+    FORCE_LIMIT_N,
+    OBS,
+)
 from rmi_learn.data.sweep import INDEX_FILE
 from rmi_learn.errors import InputError
 
@@ -324,8 +331,8 @@ def check_window(
                 f"M_L = {track.water[t]:.6f} kg at t; the chunk files come from another sweep"
             )
         orig = a["original"][i].astype(np.float64)
-        rec = track.actions[t : t + h, ACTIONS.index("F_target")]
-        if not _close(orig[:, 0], rec, _FORCE_TOL):
+        rec = track.actions[t : t + h, list(CONTROL_ACTION_INDEX)]
+        if not _close(orig, rec, _FORCE_TOL):
             raise ClosedLoopError(
                 f"{src}: the original chunk differs from the run's recorded commands at rows "
                 f"{t}..{t + h - 1}; the chunk files come from another sweep"
@@ -686,7 +693,7 @@ def _window_rows(
         axis=1,
     )
     jobs: list[tuple[str | None, str, np.ndarray, int | None, float | None]] = [
-        (None, "original", track.actions[t : t + h, [ACTIONS.index("F_target")]], None, None)
+        (None, "original", track.actions[t : t + h, list(CONTROL_ACTION_INDEX)], None, None)
     ]
     for obj, i in window.rows:
         a = chunks[obj]
