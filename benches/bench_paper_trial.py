@@ -1,11 +1,12 @@
-"""Cost of one `paper`-preset trial per sponge size on this machine.
+"""Cost of one trial of a paper grid per sponge size on this machine, extrapolated.
 
-A full paper trial at r = 2.5 mm takes 15-60 minutes here, so this times a number of steps
-from the start of the trial (settle) and extrapolates to the trial's simulated duration.
-Prints one JSON line per size: particle counts, seconds per step, and the estimated wall
-time of one trial and runs per hour.
+A trial of the `paper-fine` grid (r = 2.5 mm) takes 15-60 minutes here, so this times a
+number of steps from the start of the trial (settle) and extrapolates to the trial's
+simulated duration. Prints one JSON line per size: particle counts, seconds per step, and
+the estimated wall time of one trial and runs per hour. (For the `paper` grid, whose trials
+take minutes, measure whole trials instead: `benches/grid_time.py`.)
 
-    .venv/bin/python benches/bench_paper_trial.py [--steps 60] [--threads 2]
+    .venv/bin/python benches/bench_paper_trial.py [--grid paper-fine] [--steps 60] [--threads 2]
 
 Contact phases need somewhat more solver iterations than the settle that is timed, and a lift
 failure ends its trial early, so the estimate is good to perhaps +-30 %.
@@ -29,8 +30,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--steps", type=int, default=60)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--grid", default="paper-fine", choices=("paper", "paper-fine"))
     args = ap.parse_args()
-    grid = load_grid("paper")
+    grid = load_grid(args.grid)
     for size in grid["sizes_cm"]:
         cfg = rmi_sph.trial_config(size, 0.6, 110.0, 200.0, grid["radius_m"], **grid["overrides"])
         sim = rmi_sph.Trial(cfg, num_threads=args.threads)

@@ -28,10 +28,12 @@ from rmi_learn.data.schema import FORCE_LIMIT_N
 from rmi_learn.data.sweep import (
     INDEX_FILE,
     RUNS_SUBDIR,
+    RunSpec,
     build_index,
     estimate_wall_time,
     expand_grid,
     load_grid,
+    longest_first,
     run_sweep,
     validate_grid,
 )
@@ -133,6 +135,15 @@ def test_presets() -> None:
     assert len(paper["hold_forces_N"]) == 11 and len(paper["squeeze_forces_N"]) == 6
     assert min(paper["hold_forces_N"]) <= 20 and max(paper["hold_forces_N"]) >= 200
     assert 280 <= max(paper["squeeze_forces_N"]) <= FORCE_LIMIT_N
+    # The paper's own resolution, same runs; and the timing sample of studies/grids, which
+    # must stay a subset of the preset at its resolution and timings.
+    fine = load_grid("paper-fine")
+    assert fine["radius_m"] == 0.0025 and "dt" not in fine["overrides"]
+    assert [s.run_id for s in expand_grid(fine)] == [s.run_id for s in expand_grid(paper)]
+    assert fine["radius_m"] < paper["radius_m"]
+    sample = load_grid(path=Path(__file__).parents[2] / "studies" / "grids" / "paper-sample.json")
+    assert (sample["radius_m"], sample["overrides"]) == (paper["radius_m"], paper["overrides"])
+    assert {s.run_id for s in expand_grid(sample)} < {s.run_id for s in expand_grid(paper)}
     quick, tiny = load_grid("quick"), load_grid("tiny")
     assert 1 < len(expand_grid(tiny)) < len(expand_grid(quick)) < 594
     assert quick["radius_m"] > paper["radius_m"] and tiny["radius_m"] >= quick["radius_m"]
@@ -175,6 +186,19 @@ def test_grid_validation(change: dict[str, Any], message: str) -> None:
 def test_estimate_wall_time() -> None:
     assert estimate_wall_time(60.0, 594, 2) == 297 * 60.0
     assert estimate_wall_time(10.0, 5, 8) == 10.0
+
+
+def test_longest_first_starts_the_largest_sponges_and_keeps_grid_order_among_equals() -> None:
+    specs = expand_grid(load_grid("quick"))
+    ordered = longest_first(specs)
+    assert sorted(s.run_id for s in ordered) == sorted(s.run_id for s in specs)
+    sizes = [s.params["size_cm"] for s in ordered]
+    assert sizes == sorted(sizes, reverse=True)
+    twelve = [s.run_id for s in specs if s.params["size_cm"] == 12]
+    assert [s.run_id for s in ordered[: len(twelve)]] == twelve
+    # A finer radius has more particles than a larger sponge at a coarser one.
+    fine = RunSpec(specs[0].params, radius=specs[0].radius / 2)
+    assert longest_first([*specs, fine])[0] is fine
 
 
 # ---- local sweep ---------------------------------------------------------------------------

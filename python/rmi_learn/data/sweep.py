@@ -61,10 +61,10 @@ from rmi_learn.data.runs import (
     run_path,
     write_error,
 )
-from rmi_learn.data.schema import FORCE_LIMIT_N, PHASES, SEED_MAX, SPONGE_SIZES_CM
+from rmi_learn.data.schema import FORCE_LIMIT_N, PHASES, SEED_MAX, SPONGE_SIZES_CM, size_cm
 from rmi_learn.errors import InputError, StageFailure
 
-PRESETS: tuple[str, ...] = ("tiny", "quick", "study", "paper", "control")
+PRESETS: tuple[str, ...] = ("tiny", "quick", "study", "paper", "paper-fine", "control")
 RUNS_SUBDIR = "runs"
 INDEX_FILE = "index.parquet"
 GRID_FILE = "grid.json"
@@ -720,7 +720,9 @@ def _sweep_locked(
     if threads_per_run < 1:
         raise ValueError("threads_per_run must be at least 1")
     check_stale(specs, runs_root, configs)
-    pending = [s for s in specs if not is_done(run_path(runs_root, s.params).parent, retry_failed)]
+    pending = longest_first(
+        [s for s in specs if not is_done(run_path(runs_root, s.params).parent, retry_failed)]
+    )
     counts = {"ok": 0, "failed": 0, "unstable": 0}
     t0 = time.perf_counter()
 
@@ -771,6 +773,20 @@ def _sweep_locked(
         wall_s=time.perf_counter() - t0,
         index=index,
     )
+
+
+def longest_first(specs: list[RunSpec]) -> list[RunSpec]:
+    """``specs`` with the most particles first (the largest sponge, the finest radius), grid
+    order kept among equals: started last, a long trial would keep one worker busy while the
+    others idle. Each run's result does not depend on the order."""
+    import rmi_sph
+
+    volume = {size_cm(d): d[0] * d[1] * d[2] for d in rmi_sph.SPONGE_SIZES_M}
+
+    def particles(s: RunSpec) -> float:
+        return volume.get(int(s.params["size_cm"]), 0.0) / s.radius**3
+
+    return sorted(specs, key=lambda s: -particles(s))
 
 
 def _run_local(
