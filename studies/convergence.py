@@ -237,8 +237,8 @@ def converge(records: list[dict[str, Any]], tolerance: float) -> list[dict[str, 
 def _print_table(table: list[dict[str, Any]], tolerance: float) -> None:
     print(
         "initial pore water and water removed per phase and in all (g), peak grip force (N); "
-        "dev = deviation from the "
-        f"finest radius (water: of its total); tolerance {100 * tolerance:g} %"
+        "dev = deviation from the finest radius (water: of its total); share = the total as "
+        f"% of the initial water; tolerance {100 * tolerance:g} %"
     )
     for s in table:
         conv = s["converged_radius_mm"]
@@ -249,7 +249,7 @@ def _print_table(table: list[dict[str, Any]], tolerance: float) -> None:
         )
         print(f"\n{s['size_cm']} cm sponge, dt = {1000 * s['dt_s']:g} ms: {verdict}")
         head = "  r (mm)  particles  initial  " + "  ".join(f"{p:>7s}" for p in PHASES)
-        print(head + "    total   dev %  F_peak  dev %  lift  wall s")
+        print(head + "    total   dev %  share %  F_peak  dev %  lift  wall s")
         for r in s["rows"]:
             if r.get("status") != "ok":
                 print(f"  {r['radius_mm']:6.2f}  {r.get('status')}")
@@ -259,7 +259,8 @@ def _print_table(table: list[dict[str, Any]], tolerance: float) -> None:
             print(
                 f"  {r['radius_mm']:6.2f}  {r['particles']:9d}  {r['initial_g']:7.1f}  {cells}  "
                 f"{r['total_g']:7.2f}  "
-                f"{100 * d['total']:+6.1f}  {r['peak_force_N']:6.1f}  "
+                f"{100 * d['total']:+6.1f}  {100 * r['total_g'] / r['initial_g']:7.2f}  "
+                f"{r['peak_force_N']:6.1f}  "
                 f"{100 * d['peak_force']:+5.1f}  "
                 f"{'yes' if r['lift_success'] else 'no':>4s}  {r['wall_s']:6.0f}"
                 + ("" if r["passes"] else "  (outside)")
