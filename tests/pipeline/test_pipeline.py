@@ -8,6 +8,7 @@ The real chain runs on the ``tiny`` preset in CI (``make pipeline-tiny``).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -138,6 +139,14 @@ def test_recorded_command_lines(tmp_path: Path) -> None:
     assert [c.torch for s in ("world-models", "policies", "rank") for c in stages[s].calls()] == [
         True
     ] * 8
+
+
+def test_a_grid_preset_without_a_pipeline_preset_is_named_not_read_as_a_file(
+    tmp_path: Path,
+) -> None:
+    cfg = dataclasses.replace(load_preset("paper"), grid="paper-fine")
+    (sweep,) = {s.name: s for s in pipeline.build_stages(cfg, tmp_path, threads=2)}["sweep"].calls()
+    assert sweep.argv[:3] == ["sweep", "--preset", "paper-fine"]
 
 
 def test_failed_stage_resumes_where_it_stopped(

@@ -37,7 +37,7 @@ from typing import Any
 
 from rmi_learn import errors
 from rmi_learn.data.runs import atomic_write_json
-from rmi_learn.pipeline.config import PRESETS, PipelineConfig
+from rmi_learn.pipeline.config import PipelineConfig
 
 STAGES_SUBDIR = "stages"
 
@@ -135,9 +135,11 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
     from rmi_learn.data import dataset, sweep
     from rmi_learn.policies import closed_loop
 
+    # A grid preset's name (the sweep's presets, e.g. `paper-fine`), else a grid file.
     grid = cfg.grid
-    grid_args = ["--preset", grid] if grid in PRESETS else ["--grid", grid]
-    grid_kw: dict[str, Any] = {"preset": grid} if grid in PRESETS else {"grid_file": grid}
+    named = grid in sweep.PRESETS
+    grid_args = ["--preset", grid] if named else ["--grid", grid]
+    grid_kw: dict[str, Any] = {"preset": grid} if named else {"grid_file": grid}
     sweep_dir, data = out / "sweep", out / "dataset"
     wm_opts = cfg.world_models.given()
     pol_opts = cfg.policies.given()
@@ -196,9 +198,7 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
         argv, resume = _training_argv(head, dest, pol_opts, threads)
 
         def call() -> object:
-            return training.train_policy(
-                obj, data, dest, resume=resume, progress=False, **pol_opts
-            )
+            return training.train_policy(obj, data, dest, resume=resume, progress=False, **pol_opts)
 
         return Call(argv, call, torch=True)
 
