@@ -7,7 +7,8 @@
 //! `trial --config FILE [--threads 2] --profile` runs the trial of a TrialConfig JSON file
 //! (e.g. `json.dumps(rmi_sph.trial_config(...))`) and prints, per controller phase, the
 //! steps, wall time per stage of the step and the mean solver iterations: where a trial's
-//! time goes. `trial --config FILE --plate-load` prints instead, per phase, the mean normal
+//! time goes. The `resp` stage holds the pressure response and, in steps where a held contact
+//! slides, the slip release (`resp_it` and `slip_it` are their CG iterations per step). `trial --config FILE --plate-load` prints instead, per phase, the mean normal
 //! (squeeze-axis) load on a plate (N) and the part of it the skeleton's contacts carry; the
 //! rest is water pressing on the plates through the boundary pressure.
 
@@ -111,6 +112,7 @@ struct PhaseCost {
     pressure_iterations: u64,
     cg_iterations: u64,
     response_iterations: u64,
+    slip_iterations: u64,
 }
 
 fn profile(cfg: TrialConfig, threads: usize) {
@@ -141,13 +143,14 @@ fn profile(cfg: TrialConfig, threads: usize) {
         pc.pressure_iterations += u64::from(st.pressure.iterations);
         pc.cg_iterations += u64::from(st.cg.iterations);
         pc.response_iterations += u64::from(st.pressure_response.iterations);
+        pc.slip_iterations += u64::from(st.slip_response.iterations);
         step += 1;
     }
     let total = t_all.elapsed().as_secs_f64();
     let n = trial.simulation().particles().len();
     println!("{n} particles, {threads} threads, {step} steps, {total:.1} s wall");
     println!(
-        "{:>8} {:>6} {:>7} {:>8} | {:>6} {:>6} {:>6} {:>6} {:>6} {:>6} | {:>6} {:>6} {:>6}",
+        "{:>8} {:>6} {:>7} {:>8} | {:>6} {:>6} {:>6} {:>6} {:>6} {:>6} | {:>6} {:>6} {:>7} {:>7}",
         "phase",
         "steps",
         "wall_s",
@@ -160,13 +163,14 @@ fn profile(cfg: TrialConfig, threads: usize) {
         "rest",
         "p_it",
         "cg_it",
-        "resp_it"
+        "resp_it",
+        "slip_it"
     );
     for (name, pc) in &phases {
         let k = pc.steps.max(1) as f64;
         let st: Vec<String> = pc.stages.iter().map(|s| format!("{:6.1}", 1e3 * s / k)).collect();
         println!(
-            "{:>8} {:>6} {:>7.1} {:>8.1} | {} | {:>6.1} {:>6.1} {:>6.1}",
+            "{:>8} {:>6} {:>7.1} {:>8.1} | {} | {:>6.1} {:>6.1} {:>7.1} {:>7.1}",
             name,
             pc.steps,
             pc.wall,
@@ -174,7 +178,8 @@ fn profile(cfg: TrialConfig, threads: usize) {
             st.join(" "),
             pc.pressure_iterations as f64 / k,
             pc.cg_iterations as f64 / k,
-            pc.response_iterations as f64 / k
+            pc.response_iterations as f64 / k,
+            pc.slip_iterations as f64 / k
         );
     }
 }
