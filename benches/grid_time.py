@@ -22,7 +22,6 @@ import argparse
 import heapq
 import json
 import sys
-from collections import defaultdict
 from pathlib import Path
 
 
@@ -32,14 +31,13 @@ def mean_time_by_size(index_path: str | Path, lifted_only: bool = False) -> dict
     so this is the cost if no run of the grid drops it)."""
     import polars as pl
 
-    idx = pl.read_parquet(index_path)
-    times: dict[int, list[float]] = defaultdict(list)
-    for row in idx.iter_rows(named=True):
-        if lifted_only and not row["lift_success"]:
-            continue
-        if row["status"] in ("ok", "unstable") and row["wall_s"] is not None:
-            times[int(row["size_cm"])].append(float(row["wall_s"]))
-    return {s: sum(t) / len(t) for s, t in sorted(times.items())}
+    runs = pl.scan_parquet(index_path).filter(
+        pl.col("status").is_in(["ok", "unstable"]) & pl.col("wall_s").is_not_null()
+    )
+    if lifted_only:
+        runs = runs.filter(pl.col("lift_success"))
+    means = runs.group_by("size_cm").agg(pl.col("wall_s").mean()).sort("size_cm").collect()
+    return {int(s): float(t) for s, t in means.iter_rows()}
 
 
 def makespan(times: list[float], workers: int) -> float:

@@ -42,10 +42,9 @@ from typing import Any
 
 #: Controller phases whose removed water is an observable, in trial order.
 PHASES = ("ramp", "hold", "lift", "waiting", "squeeze")
-#: Grid presets whose phase timings a series can use (their ``overrides`` minus ``dt``).
+#: Grid presets whose phase timings a series can use (their ``overrides`` minus ``dt``). Read
+#: as files rather than through ``rmi_learn.data.sweep.load_grid``, which needs polars.
 GRIDS = Path(__file__).resolve().parents[1] / "python" / "rmi_learn" / "data" / "grids"
-#: Sponge sizes (cm) and their volume relative to the 8 cm one, for the cost estimate.
-SIZE_VOLUME = {8: 1.0, 10: 2000.0 / 1152.0, 12: 3168.0 / 1152.0}
 
 
 def timings(preset: str) -> dict[str, float]:
@@ -65,9 +64,12 @@ def trial_name(size_cm: int, radius_mm: float, dt_s: float) -> str:
 
 
 def relative_cost(size_cm: int, radius_mm: float, dt_s: float) -> float:
-    """Estimated cost of a trial relative to the others (particles x steps): used only to
-    start the most expensive first."""
-    return SIZE_VOLUME.get(size_cm, 1.0) / radius_mm**3 / dt_s
+    """Estimated cost of a trial relative to the others (sponge volume / r^3 / dt, i.e.
+    particles x steps): used only to start the most expensive first."""
+    import rmi_sph
+
+    volume = {round(100 * d[0]): d[0] * d[1] * d[2] for d in rmi_sph.SPONGE_SIZES_M}
+    return volume[size_cm] / radius_mm**3 / dt_s
 
 
 def observables(outcome: dict[str, Any], columns: dict[str, Any]) -> dict[str, Any]:
@@ -125,6 +127,8 @@ def _run_one(job: dict[str, Any]) -> dict[str, Any]:
 
 
 def _write_atomic(path: Path, record: dict[str, Any]) -> None:
+    # Not rmi_learn.data.runs.atomic_write_json: that module needs polars, which the machine
+    # running a series may lack.
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(record, indent=1) + "\n")
     os.replace(tmp, path)
