@@ -129,7 +129,7 @@ fn main() {
         &s.kappa_dt2,
         &s.dv_prev,
         &s.response_prev,
-        &s.contact_active,
+        &s.contact_load,
         &s.bodies,
     );
     let mut hasher = std::hash::DefaultHasher::new();

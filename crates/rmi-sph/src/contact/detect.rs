@@ -128,7 +128,8 @@ const HOLD_SKIN: f64 = 0.05;
 /// Finds skeleton particles touching or about to touch a body, one constraint each (the
 /// deepest), with the normal velocity that lands them exactly one radius from the surface.
 ///
-/// `active` (by solid index) marks contacts that pushed in the previous step; they are kept
+/// `load` (by solid index, N) is the normal force of each contact in the previous step; those
+/// that pushed (positive) are kept
 /// while within the hold skin, and are released when they pulled. A contact with a body
 /// that has `friction` also holds its tangential velocity (see [`Friction`]).
 pub fn detect(
@@ -137,7 +138,7 @@ pub fn detect(
     bnd: &Boundary,
     radius: f64,
     dt: f64,
-    active: &[bool],
+    load: &[f64],
     friction: Option<&Friction>,
 ) -> Vec<(VelocityConstraint, u16, Vector3<f64>)> {
     let nf = p.n_fluid;
@@ -160,7 +161,7 @@ pub fn detect(
                 let point = p.x[a] - dist * n;
                 let vb = bnd.point_velocity(bi, &point);
                 let gap = dist + dt * (p.v[a] - vb).dot(&n) - radius;
-                let hold = active[a - nf] && dist < radius * (1.0 + HOLD_SKIN);
+                let hold = load[a - nf] > 0.0 && dist < radius * (1.0 + HOLD_SKIN);
                 if gap < 0.0 || hold {
                     let target = vb.dot(&n) + (radius - dist) / dt;
                     let tangential = friction.filter(|f| f.on(bi)).map(|f| {

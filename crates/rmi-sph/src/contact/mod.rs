@@ -9,7 +9,9 @@
 //!   holds its tangential velocity, the body's plus `beta e / dt` toward its anchor, as a
 //!   constraint of the step's solves, so that the drag couples its pore water to it;
 //! - the slip release (`slip.rs`): a held stick whose force left the static cone `mu_st N`
-//!   slides with `mu_kin N` along it, passed through the same operator;
+//!   slides with `mu_kin N` along it, passed through the same operator: those the implicit
+//!   solve's load already pushes out within the pressure response, those the response's load
+//!   pushes out in a correction of their own;
 //! - the memory ([`ContactMemory`]): each contacting skeleton particle keeps an anchor, its
 //!   contact point in the body frame, while it sticks, and drops it when it slips or the
 //!   contact ends;
@@ -35,4 +37,4 @@ pub use law::{coulomb, Friction, FrictionForce, FrictionParams, Stick};
 pub use memory::{Anchor, ContactFriction, ContactMemory};
 
 pub(crate) use detect::{detect, merge, resolve};
-pub(crate) use slip::release_slipping_sticks;
+pub(crate) use slip::{release_slipping_sticks, slide_sticks};

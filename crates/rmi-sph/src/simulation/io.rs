@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use std::io::Write;
 
 /// Format version written into every snapshot (3: a checksum follows the payload).
-pub const VERSION: u32 = 3;
+pub const VERSION: u32 = 4;
 const MAGIC: &[u8; 8] = b"RMISNAP\0";
 /// Bytes of the checksum after the payload.
 const SUM_LEN: usize = 8;
@@ -69,8 +69,9 @@ pub struct Snapshot {
     pub dv_prev: Vec<Vector3<f64>>,
     /// Drag correction of the last pressure response (warm start).
     pub response_prev: Vec<Vector3<f64>>,
-    /// Skeleton contacts that pushed in the last step.
-    pub contact_active: Vec<bool>,
+    /// Per skeleton particle, the normal force (N) of its body contact in the last step;
+    /// zero where it had none or the contact did not push.
+    pub contact_load: Vec<f64>,
     /// Body poses and velocities.
     pub bodies: Vec<BodyState>,
     /// Velocities of the boundary particles (m/s). They follow a body's velocity when the
@@ -106,7 +107,7 @@ impl Snapshot {
         for (name, len) in [
             ("rest_positions", self.rest_positions.len()),
             ("fixed", self.fixed.len()),
-            ("contact_active", self.contact_active.len()),
+            ("contact_load", self.contact_load.len()),
             ("rotation", self.solid.rotation.len()),
         ] {
             if len != ns {
@@ -282,7 +283,7 @@ impl Simulation {
             kappa_dt2: self.kappa_dt2.clone(),
             dv_prev: self.dv_prev.clone(),
             response_prev: self.response_prev.clone(),
-            contact_active: self.contact_active.clone(),
+            contact_load: self.contact_load.clone(),
             bodies: self.bnd.bodies.iter().map(|b| b.state.clone()).collect(),
             boundary_velocities: self.bnd.v.clone(),
         }
@@ -323,7 +324,7 @@ impl Simulation {
         fresh.kappa_dt2 = s.kappa_dt2;
         fresh.dv_prev = s.dv_prev;
         fresh.response_prev = s.response_prev;
-        fresh.contact_active = s.contact_active;
+        fresh.contact_load = s.contact_load;
         fresh.kappa = vec![0.0; n];
         fresh.acc = vec![Vector3::zeros(); n];
         for (b, st) in fresh.bnd.bodies.iter_mut().zip(s.bodies) {

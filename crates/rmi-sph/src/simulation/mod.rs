@@ -84,8 +84,10 @@ pub struct Simulation {
     pub(crate) step: u64,
     stats: StepStats,
     contacts: Vec<Contact>,
-    /// Skeleton particles whose contact pushed in the last step (contact hysteresis).
-    pub(crate) contact_active: Vec<bool>,
+    /// Per skeleton particle, the normal force (N) its body contact pushed with in the last
+    /// step, zero for none: the contact hysteresis, and the load cap of sticks released
+    /// before the pressure response.
+    pub(crate) contact_load: Vec<f64>,
 }
 
 /// Default thread count: `RMI_NUM_THREADS`, else `RAYON_NUM_THREADS`, else the core count.
@@ -165,11 +167,11 @@ impl Simulation {
             step: 0,
             stats: StepStats::default(),
             contacts: Vec::new(),
-            contact_active: Vec::new(),
+            contact_load: Vec::new(),
             cfg,
         };
         sim.refresh_rho0();
-        sim.contact_active = vec![false; sim.p.n_solid()];
+        sim.contact_load = vec![0.0; sim.p.n_solid()];
         sim.rest.hg_k =
             sim.pool.install(|| implicit::hourglass_constants(&sim.rest, &sim.p, &sim.objects, &sim.kernel));
         Ok(sim)
@@ -218,7 +220,7 @@ impl Simulation {
             buf.iter_mut().for_each(|v| *v = Vector3::zeros());
         }
         self.kappa_dt2.iter_mut().for_each(|k| *k = 0.0);
-        self.contact_active.iter_mut().for_each(|a| *a = false);
+        self.contact_load.iter_mut().for_each(|a| *a = 0.0);
         self.time = 0.0;
         self.step = 0;
         self.update_fields();

@@ -6,7 +6,7 @@
 
 use super::Simulation;
 use crate::config::SimConfig;
-use crate::contact::{self, release_slipping_sticks, Contact, ContactStage, Friction, HeldFriction};
+use crate::contact::{self, release_slipping_sticks, slide_sticks, Contact, ContactStage, Friction, HeldFriction};
 use crate::error::{Result, RmiError};
 use crate::neighbourhood::grid::{bounds, Grid};
 use crate::solver::ctx::Ctx;
@@ -28,8 +28,9 @@ pub struct StepStats {
     /// Implicit response to the pressure impulse (zero iterations when
     /// `pressure.drag_coupled` is off or there is no skeleton).
     pub pressure_response: CgStats,
-    /// Implicit response that let held sticks slide whose force left the static cone
-    /// (zero iterations when none did).
+    /// Implicit response that let held sticks slide whose force left the static cone only
+    /// after the pressure response (zero iterations when none did; sticks that the implicit
+    /// solve's load already pushed out slide within the pressure response).
     pub slip_response: CgStats,
     /// Dynamic-dynamic neighbour pairs stored.
     pub neighbour_pairs: usize,
@@ -163,7 +164,7 @@ impl Simulation {
         elasticity::prepare(&ctx, &self.solid.rotation, &self.dens.saturation, &mut self.ef);
         let nps = nonpressure_settings(cfg);
         let detected =
-            contact::detect(&self.p, &self.nbb, &self.bnd, cfg.particle_radius, cfg.dt, &self.contact_active, None);
+            contact::detect(&self.p, &self.nbb, &self.bnd, cfg.particle_radius, cfg.dt, &self.contact_load, None);
         let cons: Vec<_> = detected.iter().map(|d| d.0).collect();
         let op = implicit::Op::new(&ctx, &self.dens, &self.ef, &nps, cons);
         f(&op)
@@ -221,7 +222,7 @@ impl Simulation {
         // Skeleton-body contacts enter the implicit solve as velocity constraints, so that
         // the contact force is the constraint reaction of the stiff elastic system.
         let detected =
-            contact::detect(&self.p, &self.nbb, &self.bnd, cfg.particle_radius, dt, &self.contact_active, friction);
+            contact::detect(&self.p, &self.nbb, &self.bnd, cfg.particle_radius, dt, &self.contact_load, friction);
         let implicit = implicit::needed(&ctx, &nps);
         let mut contacts: Vec<Contact> = Vec::with_capacity(detected.len());
         let cons: Vec<_> = detected.iter().map(|d| d.0).collect();
@@ -281,11 +282,19 @@ impl Simulation {
             1 + self.objects.len(),
         );
         let t3p = Instant::now();
-        let pressure_response = match (v_pre, &system) {
+        let pressure_response = match (v_pre, &mut system) {
             (Some(v_pre), Some(op)) => {
                 let mut dv: Vec<Vector3<f64>> = v.iter().zip(&v_pre).map(|(a, b)| a - b).collect();
+                // Sticks that the implicit solve's load already pushes out of the static cone
+                // slide within the pressure response: one solve instead of two.
+                let n = v.len();
+                if let Some(slip) =
+                    friction.and_then(|f| slide_sticks(op, &mut contacts, f, &self.p.mass, dt, n, &self.contact_load))
+                {
+                    dv.iter_mut().zip(&slip).for_each(|(d, s)| *d += s);
+                }
                 let (st, impulses) =
-                    implicit::pressure_response(op, &mut dv, Some(&mut self.response_prev), &mut self.cgwork);
+                    implicit::pressure_response(op, &mut dv, Some(&mut self.response_prev), &mut self.cgwork, 0.0);
                 v.iter_mut().zip(v_pre.iter().zip(&dv)).for_each(|(vi, (p, d))| *vi = p + d);
                 // What the constraints took of the pressure impulse reaches the bodies.
                 for (c, j) in contacts.iter_mut().zip(&impulses) {
@@ -297,7 +306,9 @@ impl Simulation {
         };
         let slip_response = match (&mut system, friction) {
             (Some(op), Some(f)) => {
-                release_slipping_sticks(op, &mut contacts, f, &self.p.mass, dt, &mut v, &mut self.cgwork)
+                // A correction to the pressure response (or, without one, the implicit solve).
+                let floor = if pressure_response.rhs_norm > 0.0 { pressure_response.rhs_norm } else { cg.rhs_norm };
+                release_slipping_sticks(op, &mut contacts, f, &self.p.mass, dt, &mut v, &mut self.cgwork, floor)
             }
             _ => CgStats::default(),
         };
@@ -311,10 +322,10 @@ impl Simulation {
         // merged with the constraint contacts; then the caller's hook (friction).
         let extra = contact::resolve(&self.p, &mut v, &self.nbb, &self.bnd, cfg.particle_radius, dt);
         contacts = contact::merge(contacts, extra);
-        let mut contact_active = vec![false; self.contact_active.len()];
+        let mut contact_load = vec![0.0; self.contact_load.len()];
         for c in &contacts {
             if c.particle as usize >= nf && c.normal_force > 0.0 {
-                contact_active[c.particle as usize - nf] = true;
+                contact_load[c.particle as usize - nf] += c.normal_force;
             }
         }
         let mut forces: Vec<(Vector3<f64>, Vector3<f64>)> = reactions;
@@ -351,7 +362,7 @@ impl Simulation {
             };
             return Err(RmiError::Unstable { step: self.step, time: self.time, max_velocity: vmax, reason });
         }
-        self.contact_active = contact_active;
+        self.contact_load = contact_load;
         // 11. Advect.
         self.p.x.par_iter_mut().zip(v.par_iter()).for_each(|(x, vi)| *x += dt * vi);
         self.p.v = v;

@@ -63,7 +63,7 @@ pub fn solve(
         let xa = &mut x[con.particle as usize];
         *xa = con.project(xa);
     }
-    let stats = pcg(op, &mut x, w, s.tolerance, s.max_iterations);
+    let stats = pcg(op, &mut x, w, s.tolerance, s.max_iterations, 0.0);
     let impulses = constraint_impulses(op, &x, w);
     v.par_iter_mut().zip(dv_prev.par_iter_mut()).zip(x.par_iter()).for_each(|((vi, dvi), xi)| {
         *dvi = xi - *vi;
@@ -80,7 +80,8 @@ pub fn solve(
 /// `A` is linear, the step's velocity v* + x equals the implicit solve with the pressure
 /// force on its right-hand side. Returns the statistics and, per constraint, the impulse
 /// (N s) it exerted to hold its components against the increment; what the increment
-/// pushes into a body must reach that body's load.
+/// pushes into a body must reach that body's load. The tolerance is relative to the larger
+/// of the right-hand side's norm and `rhs_floor` (N s; see [`pcg`]).
 ///
 /// The pressure solve moves water as if it were free; through a sponge's pores the drag
 /// takes most of that impulse within the same step and the skeleton's elasticity carries
@@ -91,6 +92,7 @@ pub fn pressure_response(
     dv: &mut [Vector3<f64>],
     correction_prev: Option<&mut [Vector3<f64>]>,
     w: &mut CgWork,
+    rhs_floor: f64,
 ) -> (CgStats, Vec<Vector3<f64>>) {
     let c = op.c;
     let nf = c.p.n_fluid;
@@ -122,7 +124,7 @@ pub fn pressure_response(
         dv.par_iter_mut().zip(prev.par_iter()).for_each(|(x, k)| *x += k);
         hold(dv);
     }
-    let stats = pcg(op, dv, w, op.s.tolerance, op.s.max_iterations);
+    let stats = pcg(op, dv, w, op.s.tolerance, op.s.max_iterations, rhs_floor);
     if let Some(prev) = correction_prev {
         prev.par_iter_mut().zip(dv.par_iter().zip(dv_in.par_iter())).for_each(|(k, (x, d))| *k = x - d);
     }

@@ -12,6 +12,8 @@ pub struct CgStats {
     pub iterations: u32,
     /// Final relative residual.
     pub residual: f64,
+    /// Norm of the filtered right-hand side (N s): the scale of the solve's momentum.
+    pub rhs_norm: f64,
 }
 
 /// Work arrays reused between steps.
@@ -48,7 +50,9 @@ fn dot(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
 }
 
 /// Preconditioned CG on `A x = w.b` from the guess in `x`, with the constrained rows' normal
-/// components held fixed; the tolerance is relative to the filtered right-hand side.
+/// components held fixed; the tolerance is relative to the filtered right-hand side's norm,
+/// or to `rhs_floor` (N s) where that is larger: a correction to an earlier solve of the
+/// same step needs no smaller residual than that solve left.
 ///
 /// The preconditioner is block Jacobi `y = M^-1 r`, plus, when the operator has a coarse
 /// level ([`crate::solver::linalg::coarse`], A-DEF2), the coarse correction `z = y + Z E^-1 (Z^T r - (A Z)^T y)`;
@@ -63,6 +67,7 @@ pub(crate) fn pcg<S: System>(
     w: &mut CgWork,
     tolerance: f64,
     max_iterations: u32,
+    rhs_floor: f64,
 ) -> CgStats {
     w.y.resize(x.len(), Vector3::zeros());
     op.apply(x, &mut w.ap, &mut w.prl);
@@ -70,7 +75,8 @@ pub(crate) fn pcg<S: System>(
     op.filter(&mut w.r);
     let mut bf = w.b.clone();
     op.filter(&mut bf);
-    let bnorm = dot(&bf, &bf).sqrt().max(1e-300);
+    let rhs_norm = dot(&bf, &bf).sqrt();
+    let bnorm = rhs_norm.max(rhs_floor).max(1e-300);
     if let Some(tl) = op.coarse() {
         // x += Z c, r -= A Z c with c = E^-1 Z^T r (the rows of A Z are filtered already).
         let c0 = tl.coarse_correction(&w.r, None);
@@ -103,7 +109,7 @@ pub(crate) fn pcg<S: System>(
     );
     let mut rz = coarse(&w.r, &mut w.y, ry);
     w.p.copy_from_slice(&w.y);
-    let mut stats = CgStats { iterations: 0, residual: rr.sqrt() / bnorm };
+    let mut stats = CgStats { iterations: 0, residual: rr.sqrt() / bnorm, rhs_norm };
     while stats.residual > tolerance && stats.iterations < max_iterations {
         let pap = op.apply_filtered_dot(&w.p, &mut w.ap, &mut w.prl);
         if pap <= 0.0 || !pap.is_finite() {
