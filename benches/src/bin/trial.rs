@@ -8,7 +8,8 @@
 //! (e.g. `json.dumps(rmi_sph.trial_config(...))`) and prints, per controller phase, the
 //! steps, wall time per stage of the step and the mean solver iterations: where a trial's
 //! time goes. The `resp` stage holds the pressure response and, in steps where a held contact
-//! slides, the slip release (`resp_it` and `slip_it` are their CG iterations per step). `trial --config FILE --plate-load` prints instead, per phase, the mean normal
+//! slides only after it, the slip release (`resp_it` and `slip_it` are their CG iterations
+//! per step). `trial --config FILE --plate-load` prints instead, per phase, the mean normal
 //! (squeeze-axis) load on a plate (N) and the part of it the skeleton's contacts carry; the
 //! rest is water pressing on the plates through the boundary pressure.
 

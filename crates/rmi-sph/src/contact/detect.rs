@@ -129,9 +129,9 @@ const HOLD_SKIN: f64 = 0.05;
 /// deepest), with the normal velocity that lands them exactly one radius from the surface.
 ///
 /// `load` (by solid index, N) is the normal force of each contact in the previous step; those
-/// that pushed (positive) are kept
-/// while within the hold skin, and are released when they pulled. A contact with a body
-/// that has `friction` also holds its tangential velocity (see [`Friction`]).
+/// that pushed (positive) are kept while within the hold skin, and are released when they
+/// pulled. A contact with a body that has `friction` also holds its tangential velocity (see
+/// [`Friction`]).
 pub fn detect(
     p: &Particles,
     nbb: &NeighbourLists,

@@ -12,22 +12,20 @@ use nalgebra::Vector3;
 /// `None` when no force changed. A contact that already slides this step keeps its kinetic
 /// force unless its normal load has since fallen so far that the force left the static cone;
 /// it is then brought back to `mu_kin N` of the present load. `previous` (per skeleton
-/// particle, the normal force in N its contact ended the previous step with, zero for none;
-/// empty for no cap) caps the load of the kinetic force: a stick released before the
-/// pressure response slides with `mu_kin min(N, N_prev)`, so that a load the response takes
-/// back, as it did a step earlier, leaves the force inside the cone. `contacts` are aligned
-/// with the operator's constraints; `n` is the number of particles.
+/// particle, the normal force in N its contact ended the previous step with, zero for none)
+/// caps the load of the kinetic force: a stick released before the pressure response slides
+/// with `mu_kin min(N, N_prev)`, so that a load the response takes back, as it did a step
+/// earlier, leaves the force inside the cone. `contacts` are aligned with the operator's
+/// constraints; `mass` (kg) has every particle's.
 pub(crate) fn slide_sticks(
     op: &mut implicit::Op,
     contacts: &mut [Contact],
     friction: &Friction,
     mass: &[f64],
     dt: f64,
-    n: usize,
-    previous: &[f64],
+    previous: Option<&[f64]>,
 ) -> Option<Vec<Vector3<f64>>> {
     let mut dv: Vec<Vector3<f64>> = Vec::new();
-    let n_fluid = n - previous.len();
     for (k, c) in contacts.iter_mut().enumerate() {
         let Some(h) = c.held.as_mut() else { continue };
         let normal = c.normal_force.max(0.0);
@@ -35,13 +33,14 @@ pub(crate) fn slide_sticks(
         if f <= friction.mu_static * normal {
             continue;
         }
-        let load = match (c.particle as usize).checked_sub(n_fluid).and_then(|s| previous.get(s)) {
-            Some(&prev) if prev > 0.0 => normal.min(prev),
+        let prev = previous.and_then(|p| (c.particle as usize).checked_sub(mass.len() - p.len()).map(|s| p[s]));
+        let load = match prev {
+            Some(prev) if prev > 0.0 => normal.min(prev),
             _ => normal,
         };
         let kinetic = h.force * (friction.mu_kinetic * load / f);
         if dv.is_empty() {
-            dv = vec![Vector3::zeros(); n];
+            dv = vec![Vector3::zeros(); mass.len()];
         }
         let a = c.particle as usize;
         dv[a] += dt / mass[a] * (kinetic - h.force);
@@ -71,7 +70,7 @@ pub(crate) fn release_slipping_sticks(
     work: &mut CgWork,
     rhs_floor: f64,
 ) -> CgStats {
-    let Some(mut dv) = slide_sticks(op, contacts, friction, mass, dt, v.len(), &[]) else {
+    let Some(mut dv) = slide_sticks(op, contacts, friction, mass, dt, None) else {
         return CgStats::default();
     };
     let (stats, impulses) = implicit::pressure_response(op, &mut dv, None, work, rhs_floor);

@@ -287,9 +287,9 @@ impl Simulation {
                 let mut dv: Vec<Vector3<f64>> = v.iter().zip(&v_pre).map(|(a, b)| a - b).collect();
                 // Sticks that the implicit solve's load already pushes out of the static cone
                 // slide within the pressure response: one solve instead of two.
-                let n = v.len();
+                let previous = Some(self.contact_load.as_slice());
                 if let Some(slip) =
-                    friction.and_then(|f| slide_sticks(op, &mut contacts, f, &self.p.mass, dt, n, &self.contact_load))
+                    friction.and_then(|f| slide_sticks(op, &mut contacts, f, &self.p.mass, dt, previous))
                 {
                     dv.iter_mut().zip(&slip).for_each(|(d, s)| *d += s);
                 }
