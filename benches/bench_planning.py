@@ -16,8 +16,9 @@ on all of them alike:
 - ``fast``: :class:`RealtimePlanner` (``policies/realtime.py``) at each step count of
   ``--fast-steps`` (a distilled student runs at 1 or 2 steps);
 
-each with the Transformer W_T (width 256, 8 heads, 3 + 4 layers) and with the AC-GRU-WM
-(native rollout where the extension has it) as scorer. Prints p50/p95 in ms and decisions
+each with the Transformer W_T (width 256, 8 heads, 3 + 4 layers), the AC-GRU-WM (native
+rollout where the extension has it) and the 32-step Linear-ARX (``arx``; ``wm/arx-32`` of a
+pipeline output) as scorer. Prints p50/p95 in ms and decisions
 per second, and with ``--breakdown`` where one decision's time goes (condition encoding,
 one UNet pass over the K samples in eager torch and on the fast path, with its FLOPs, and
 each scorer alone).
@@ -75,7 +76,7 @@ def main() -> None:
     p.add_argument("--objectives", default="diffusion,flow")
     p.add_argument("--fast-steps", default="1,2,4,8,ref",
                    help="fast-path step counts; 'ref': the paper's 16 / 20")  # fmt: skip
-    p.add_argument("--scorers", default="gru,wt", help="comma list of gru, wt")
+    p.add_argument("--scorers", default="gru,wt,arx", help="comma list of gru, wt, arx")
     p.add_argument("--no-reference", action="store_true", help="skip the reference planner")
     p.add_argument("--breakdown", action="store_true", help="time the parts of a decision")
     p.add_argument("--json", action="store_true", help="print one JSON line per setting")
@@ -102,7 +103,8 @@ def main() -> None:
         net = PolicyUNet(UNetConfig()).eval()
         nets = {obj: net for obj in objectives}
         wms = {"wt": build({"kind": "transformer"}).eval(),
-               "gru": build({"kind": "ac-gru"}).eval()}  # fmt: skip
+               "gru": build({"kind": "ac-gru"}).eval(),
+               "arx": build({"kind": "arx", "horizon": 32}).eval()}  # fmt: skip
         std = Standardiser(
             z_mean=torch.zeros(18), z_std=torch.full((18,), 0.1),
             u_mean=torch.tensor([150.0]), u_std=torch.tensor([80.0]),
@@ -188,6 +190,8 @@ def trained(run: str, objectives: list[str]) -> tuple[Any, ...]:
             net, objective, _ = load_policy(d)
             students[obj] = (net.eval(), int(objective.n_sample_steps))
     wms = {"wt": load(root / "wm" / "transformer")[0], "gru": load(root / "wm" / "ac-gru")[0]}
+    if (root / "wm" / "arx-32" / "config.json").exists():
+        wms["arx"] = load(root / "wm" / "arx-32")[0]
     ds = load_dataset(root / "dataset")
     std = Standardiser.from_stats(ds.stats)
     ws = ds.windows("test", None, 16, 32)
@@ -228,6 +232,10 @@ def breakdown(net: Any, wms: dict[str, Any], hist: Any, mask: Any, args: Any,
             lambda: wms["wt"].predict(hist.expand(k, -1, -1), mask.expand(k, -1, -1), u), reps)
         parts[f"AC-GRU-WM scoring {k} x 32"] = median_ms(
             lambda: wms["gru"].predict(hist, mask, u), reps)  # fmt: skip
+        if "arx" in wms:
+            parts[f"Linear-ARX (32) scoring {k} x 32"] = median_ms(
+                lambda: wms["arx"].predict(hist.expand(k, -1, -1), mask.expand(k, -1, -1), u),
+                reps)  # fmt: skip
     for name, ms in parts.items():
         print(f"{name:40s} {ms:7.2f} ms")
     for name in (f"UNet pass, eager, batch {k}", f"UNet pass, fast path, batch {k}"):

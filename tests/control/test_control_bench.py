@@ -23,6 +23,7 @@ from rmi_learn.cli import main
 from rmi_learn.control import run_control_bench
 from rmi_learn.control.bench import (
     ACTING_PHASES,
+    SAMPLES_FILE,
     SETPOINT_LOW_FRACTION,
     WINDOWS_FILE,
     candidates,
@@ -207,6 +208,7 @@ def test_benchmark_invariants_threads_and_resume(inputs: dict[str, Path], tmp_pa
         (["--goal-kg", "-0.1"], "finite mass"),
         (["--goal-kg", "50"], "water present"),
         (["--receding", "40"], "at most the chunk length"),
+        (["--receding-scorers", "nope"], "not among the scorers"),
     ],
 )
 def test_bad_inputs_exit_2_with_one_line(
@@ -270,3 +272,77 @@ def test_a_policy_beside_the_two_objectives_is_a_controller_of_its_own(
     assert {"first-sample/flow", "first-sample/flow-fast", "ranked-ac-gru/flow-fast"} <= ctrls
     fast = rows.filter(pl.col("objective") == "flow-fast")
     assert fast.height > 0 and (fast["status"] == "ok").all()
+
+
+def test_every_executed_chunk_is_kept_with_every_scorers_forecast(
+    inputs: dict[str, Path], tmp_path: Path
+) -> None:
+    # Two world models: the ensemble ranks and re-plans beside them.
+    wm = tmp_path / "wm"
+    shutil.copytree(inputs["wm"], wm)
+    torch.manual_seed(1)
+    other = ACGRUWM(hidden=16, layers=1, u_embed=8)
+    shutil.copy(inputs["wm"] / "ac-gru" / "config.json", _mkdir(wm / "ac-gru-b") / "config.json")
+    save_weights(other.state_dict(), wm / "ac-gru-b" / "model.safetensors")
+    k, n_set = 3, 3
+    kw = dict(states_per_size=1, goals_per_state=1, setpoints=n_set, k=k, receding=16,
+              receding_scorers=["ac-gru", "ensemble"], progress=False)
+    out = tmp_path / "out"
+    res = run_control_bench(inputs["runs"], inputs["data"], wm, inputs["policy"], out,
+                            **kw)  # type: ignore[arg-type]
+    scorers = res["sample_scorers"]
+    assert scorers == ["ac-gru", "ac-gru-b", "ensemble"]
+    rows = _rows(out).to_dicts()
+    ctrls = {r["controller"] for r in rows}
+    assert {"ranked-ensemble/flow", "receding-16/flow", "receding-16-ensemble/flow"} <= ctrls
+    samples = pl.read_parquet(out / SAMPLES_FILE)
+    meta = pl.read_parquet_metadata(out / SAMPLES_FILE)
+    assert json.loads(meta["rmi.control.scorers"]) == scorers
+    assert samples.filter(pl.col("objective") == "constant").height == n_set
+    by = {(r["goal_kind"], r["goal_index"], r["controller"]): r for r in rows}
+    rec = samples.filter(pl.col("objective") == "recorded").to_dicts()
+    assert len(rec) == 1
+    assert rec[0]["M_L_end_kg"] == by[("logged", 0, "recorded")]["M_L_end_kg"]
+    for kind, gi in {(r["goal_kind"], r["goal_index"]) for r in rows}:
+        own = samples.filter(
+            (pl.col("objective") == "flow") & (pl.col("goal_kind") == kind)
+            & (pl.col("goal_index") == gi)
+        ).sort("sample_index").to_dicts()
+        assert [r["sample_index"] for r in own] == list(range(k))
+        assert all(len(r["forces_N"]) == H for r in own)
+        goal = own[0]["goal_kg"]
+        errs = [1000.0 * abs(r["M_L_end_kg"] - goal) for r in own]
+        assert by[(kind, gi, "best-of-k/flow")]["err_g"] == pytest.approx(min(errs), abs=1e-9)
+        assert by[(kind, gi, "first-sample/flow")]["err_g"] == pytest.approx(errs[0], abs=1e-9)
+        for i, name in enumerate(scorers):
+            r = by[(kind, gi, f"ranked-{name}/flow")]
+            pred = own[r["sample_index"]]["pred_M_L_kg"][i]
+            assert r["pred_err_g"] == pytest.approx(1000.0 * abs(pred - goal), rel=1e-5, abs=1e-4)
+        for r in own:  # the ensemble forecasts its members' mean
+            assert r["pred_M_L_kg"][2] == pytest.approx(np.mean(r["pred_M_L_kg"][:2]), rel=1e-5)
+    diag = res["scorer_diagnostics"]["8"]
+    assert set(diag) == set(scorers) and diag["ac-gru"]["chunks"] == samples.height
+    assert "Spearman, setpoint sweep" in (out / "table_control.md").read_text()
+    # Ranking the stored samples again with the same scorers makes the same choices.
+    from rmi_learn import world_models as models
+    from rmi_learn.control.rerank import rerank
+    from rmi_learn.policies.ranking import EnsembleScorer, world_model_scorer
+
+    fns = {n: world_model_scorer(models.load(wm / n)[0]) for n in ("ac-gru", "ac-gru-b")}
+    again_ranked = rerank(out, {**{n: (f, None) for n, f in fns.items()},
+                                "ensemble": (EnsembleScorer(fns), None)})
+    for name, groups in again_ranked.items():
+        assert len(groups) == len({(r["goal_kind"], r["goal_index"]) for r in rows})
+        for grp in groups:
+            r = by[(grp.goal_kind, grp.goal_index, f"ranked-{name}/flow")]
+            assert grp.index == r["sample_index"] and grp.err_g == pytest.approx(r["err_g"])
+    # Resume changes neither file.
+    again = run_control_bench(inputs["runs"], inputs["data"], wm, inputs["policy"], out,
+                              **kw)  # type: ignore[arg-type]
+    assert again["states_run_now"] == 0
+    assert pl.read_parquet(out / SAMPLES_FILE).equals(samples, null_equal=True)
+
+
+def _mkdir(path: Path) -> Path:
+    path.mkdir(parents=True, exist_ok=True)
+    return path

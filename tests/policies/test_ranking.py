@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ from rmi_learn.policies.diffusion import DiffusionObjective
 from rmi_learn.policies.flow import FlowObjective
 from rmi_learn.policies.ranking import (
     CostWeights,
+    EnsembleScorer,
     Planner,
     Standardiser,
     clip_forces,
@@ -52,6 +54,39 @@ def test_cost_terms_by_hand() -> None:
     expect = 2.1 + w.force * 130 + w.slip * 0.5 + w.jerk * 15.0
     assert c["J"].item() == pytest.approx(expect, rel=1e-4)
     assert (w.water, w.force, w.slip, w.jerk) == (1.0, 1e-4, 0.05, 0.1)
+    assert c["J_D"].item() == 0.0  # one scorer: no disagreement
+
+
+def _constant_water(level_std: float) -> Any:
+    def score(hist: Tensor, hist_mask: Tensor, actions: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        n, h, _ = actions.shape
+        z = torch.zeros(n, h, 18)
+        z[..., 0] = level_std - actions[..., 0]
+        return z, torch.ones(n, h), torch.full((n, h, 4), 0.25)
+
+    return score
+
+
+def test_ensemble_scores_the_mean_and_penalises_the_spread() -> None:
+    # Members a and b predict (standardised) M_L = 1 - u and 2 - u: means 1.5 - u, spread
+    # 0.5 std = 0.5 * 0.2 kg = 100 g at every chunk.
+    ens = EnsembleScorer({"a": _constant_water(1.0), "b": _constant_water(2.0)})
+    net = PolicyUNet(UNetConfig(channels=(8, 16, 32), time_embed_dim=16, gru_hidden=8,
+                                goal_hidden=8))  # fmt: skip
+    planner = Planner(net, FlowObjective(), ens, STD, k=2, weights=CostWeights(disagreement=2.0))
+    u = torch.tensor([150.0, 250.0]).view(1, 2, 1, 1).expand(1, 2, 32, 1)  # std 0 and 1
+    goal = STD.water_to_kg(torch.tensor([1.5]))
+    costs, water = planner.score(torch.zeros(1, 16, 23), torch.ones(1, 16, 23), u, goal)
+    assert torch.allclose(water, STD.water_to_kg(torch.tensor([[1.5, 0.5]])))
+    assert torch.allclose(costs["J_M"], torch.tensor([[0.0, 200.0]]), atol=1e-3)
+    assert torch.allclose(costs["J_D"], torch.tensor([[100.0, 100.0]]), atol=1e-3)
+    assert torch.allclose(costs["J"] - costs["J_M"] - 2.0 * costs["J_D"],
+                          1e-4 * u[..., 0].amax(-1) + 0.05 * 0.5, atol=1e-3)
+    # As a plain scorer it is the members' mean.
+    z, _, _ = ens(torch.zeros(2, 16, 23), torch.ones(2, 16, 23), torch.zeros(2, 32, 1))
+    assert torch.allclose(z[..., 0], torch.full((2, 32), 1.5))
+    with pytest.raises(ValueError, match="at least two"):
+        EnsembleScorer({"a": _constant_water(1.0)})
 
 
 def test_jerk_and_force_clipping() -> None:

@@ -3,7 +3,8 @@
 
 ``rmi control-bench --runs SWEEP_DIR --data DATASET --wm WM_DIR --policy POLICY_DIR --out DIR
 [--states-per-size 4] [--goals-per-state 2] [--setpoints 5] [--k 8] [--receding 8]
-[--scorers wt,ac-gru] [--goal-kg G ...] [--split test] [--seed 0] [--threads N]``
+[--scorers wt,ac-gru] [--no-ensemble] [--receding-scorers wt,ensemble] [--goal-kg G ...]
+[--split test] [--seed 0] [--threads N]``
 """
 
 from __future__ import annotations
@@ -73,6 +74,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "receding controller's) (default: every one that can rank chunks)",
     )
     parser.add_argument(
+        "--no-ensemble",
+        action="store_true",
+        help="do not rank by the ensemble of the scorers (mean forecast, spread as a penalty)",
+    )
+    parser.add_argument(
+        "--receding-scorers",
+        type=_names,
+        default=(),
+        metavar="A,B",
+        help="scorers of the receding-horizon controller, ensemble included (default: the "
+        "first scorer)",
+    )
+    parser.add_argument(
         "--goal-kg",
         type=_goal,
         action="append",
@@ -111,6 +125,8 @@ def run(args: argparse.Namespace) -> int:
         k=args.k,
         receding=args.receding,
         scorers=args.scorers,
+        ensemble=not args.no_ensemble,
+        receding_scorers=args.receding_scorers,
         goal_kg=args.goal_kg,
         split=args.split,
         seed=args.seed,

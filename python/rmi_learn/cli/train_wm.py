@@ -61,6 +61,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="architecture override passed to the model constructor, e.g. d_model=128 "
         "(JSON value; repeatable) (default: each model's standard architecture)",
     )
+    parser.add_argument(
+        "--horizon",
+        type=count(1),
+        default=None,
+        help="forecast steps of the training windows (default: a lookahead model's fixed "
+        "horizon, else 64; 32 to learn to score the policies' chunks)",
+    )
     parser.add_argument("--epochs", type=count(1), default=40, help="maximum epochs")
     parser.add_argument(
         "--patience", type=count(1), default=8, help="early-stopping patience (epochs)"
@@ -170,6 +177,7 @@ def run(args: argparse.Namespace) -> int:
         debug=args.debug,
         progress=not args.no_progress,
         tensorboard=args.tensorboard,
+        horizon=args.horizon,
     )
     print(json.dumps(summary, indent=2))
     return 0

@@ -44,7 +44,10 @@ ACTING_PHASES: tuple[str, ...] = ("hold", "lift", "waiting", "squeeze")
 SETPOINT_LOW_FRACTION = 0.8
 #: World-model directory names that score chunks under another name in the tables.
 SCORER_NAMES = {"transformer": "wt"}
+#: Name of the scorer that combines every loaded world model (mean forecast, spread penalty).
+ENSEMBLE = "ensemble"
 WINDOWS_FILE = "control_windows.parquet"
+SAMPLES_FILE = "control_samples.parquet"
 TABLE_STEM = "table_control"
 FIGURE_FILE = "fig_control.png"
 OBJECTIVES: tuple[str, ...] = ("diffusion", "flow")
@@ -85,6 +88,28 @@ ROW_SCHEMA: dict[str, Any] = {
     "persistence_err_g": pl.Float64,
     "executions": pl.Int64,
     "wall_s": pl.Float64,
+}
+
+#: Columns of ``control_samples.parquet``: every executed chunk with every scorer's forecast.
+#: ``objective`` is ``constant`` (the setpoint sweep), ``recorded`` or a policy name;
+#: ``pred_M_L_kg`` holds one forecast of the terminal M_L per scorer, in the order of the
+#: file's ``rmi.control.scorers`` metadata (and ``table_control.json`` -> ``sample_scorers``).
+SAMPLE_SCHEMA: dict[str, Any] = {
+    "size_cm": pl.Int64,
+    "run_id": pl.String,
+    "t": pl.Int64,
+    "state_hash": pl.String,
+    "goal_kind": pl.String,
+    "goal_index": pl.Int64,
+    "goal_kg": pl.Float64,
+    "objective": pl.String,
+    "sample_index": pl.Int64,
+    "forces_N": pl.List(pl.Float64),
+    "water_now_kg": pl.Float64,
+    "M_L_end_kg": pl.Float64,
+    "peak_force_N": pl.Float64,
+    "status": pl.String,
+    "pred_M_L_kg": pl.List(pl.Float64),
 }
 
 
@@ -319,8 +344,15 @@ class Bench:
         given_goals: Sequence[float],
         receding: int,
         seed: int,
+        ensemble: bool = True,
+        receding_scorers: Sequence[str] = (),
     ) -> None:
-        from rmi_learn.policies.ranking import Planner, Standardiser, world_model_scorer
+        from rmi_learn.policies.ranking import (
+            EnsembleScorer,
+            Planner,
+            Standardiser,
+            world_model_scorer,
+        )
 
         self.sim, self.substeps, self.ds = sim, substeps, ds
         self.k, self.h, self.seed = k, horizon, seed
@@ -329,16 +361,20 @@ class Bench:
         self.receding = receding
         self.std = Standardiser.from_stats(ds.stats)
         self.policies = policies
-        self.scorer_names = list(scorers)
+        fns = {name: world_model_scorer(sc.model) for name, sc in scorers.items()}
+        if ensemble and len(fns) >= 2:
+            fns[ENSEMBLE] = EnsembleScorer(dict(fns))  # type: ignore[assignment]
+        self.scorer_names = list(fns)
         self.planners = {
-            (p, s): Planner(
-                pol.net, pol.objective, world_model_scorer(sc.model), self.std, k=k
-            )
+            (p, s): Planner(pol.net, pol.objective, fn, self.std, k=k)
             for p, pol in policies.items()
-            for s, sc in scorers.items()
+            for s, fn in fns.items()
         }
         self.default_scorer = self.scorer_names[0]
+        self.receding_scorers = list(receding_scorers) or [self.default_scorer]
         self.executions = 0
+        #: Rows of ``control_samples.parquet`` produced by the last :meth:`state_rows`.
+        self.samples: list[dict[str, Any]] = []
 
     # -- helpers --------------------------------------------------------------------
 
@@ -352,23 +388,23 @@ class Bench:
         g = torch.as_tensor(np.asarray(g_kg), dtype=torch.float32)
         return (g - self.std.z_mean[0]) / self.std.z_std[0]
 
-    def score_at(
-        self, planner: Any, hist: Any, mask: Any, u_phys: Any, goal_kg: Any, step: int
-    ) -> tuple[dict[str, Any], Any]:
-        """Costs of ``u_phys`` (B, M, H, 1) with the predicted water taken after command
-        ``step`` (0-based) instead of the last one; otherwise :meth:`Planner.score`."""
-        from rmi_learn.policies.ranking import cost_terms
-
-        b, m, h, _ = u_phys.shape
-        if not getattr(planner.scorer, "shares_history", False):
-            hist = hist.repeat_interleave(m, dim=0)
-            mask = mask.repeat_interleave(m, dim=0)
-        z, _c, p_f = planner.scorer(hist, mask, self.std.u_to_std(u_phys.reshape(b * m, h, -1)))
-        water = self.std.water_to_kg(z[:, step, 0]).view(b, m)
-        costs = cost_terms(
-            water, goal_kg[:, None].expand(b, m), u_phys, p_f.view(b, m, h, -1), planner.weights
-        )
-        return costs, water
+    def _sample_row(
+        self, base: Mapping[str, Any], objective: str, index: int, forces: Any, e: Execution,
+        pred_kg: Sequence[float], goal: tuple[str, int, float] | None = None,
+    ) -> None:
+        self.samples.append({
+            **{c: base[c] for c in ("size_cm", "run_id", "t", "state_hash", "water_now_kg")},
+            "goal_kind": None if goal is None else goal[0],
+            "goal_index": None if goal is None else goal[1],
+            "goal_kg": None if goal is None else goal[2],
+            "objective": objective,
+            "sample_index": index,
+            "forces_N": [float(f) for f in np.asarray(forces, dtype=np.float64)],
+            "M_L_end_kg": e.M_L,
+            "peak_force_N": e.peak_force_N,
+            "status": e.status,
+            "pred_M_L_kg": [float(x) for x in pred_kg],
+        })
 
     # -- one state ------------------------------------------------------------------
 
@@ -432,6 +468,22 @@ class Bench:
         rec = self._exec(s.state, recorded_f)
         logged = next(g for g in goals if g[0] == "logged")
         row(logged, "recorded", rec, executions=1)
+        # Every scorer's forecast of the sweep's and the recorded chunk's outcome.
+        self.samples = []
+        ref_u = torch.as_tensor(
+            np.stack([np.full(h, f) for f, _ in sweep] + [recorded_f])[None, :, :, None],
+            dtype=torch.float32,
+        )
+        first_pol = next(iter(self.policies))
+        ref_pred = np.stack([
+            self.planners[(first_pol, sn)].score(
+                s.hist, s.hist_mask, ref_u, torch.zeros(1)
+            )[1][0].double().numpy()
+            for sn in self.scorer_names
+        ], axis=-1)
+        for i, (f, e) in enumerate(sweep):
+            self._sample_row(base, "constant", i, np.full(h, f), e, ref_pred[i])
+        self._sample_row(base, "recorded", 0, recorded_f, rec, ref_pred[-1])
         for goal in goals:
             ok = [(f, e) for f, e in sweep if e.status == "ok" and e.M_L is not None]
             if ok:
@@ -464,7 +516,13 @@ class Bench:
                 sn: self.planners[(pname, sn)].score(hist, mask, cand, goal_kg_t)
                 for sn in self.scorer_names
             }
+            pred_kg = np.stack(
+                [scored[sn][1].double().numpy() for sn in self.scorer_names], axis=-1
+            )  # (G, K + 1, scorers)
             for gi, goal in enumerate(goals):
+                for j in range(self.k):
+                    self._sample_row(base, pname, j, samples[gi, j, :, 0].double().numpy(),
+                                     exe[gi][j], pred_kg[gi, j], goal)
                 errs = np.asarray(
                     [np.inf if e.M_L is None else 1000.0 * abs(e.M_L - goal[2]) for e in exe[gi]]
                 )
@@ -493,24 +551,31 @@ class Bench:
                         persistence_err_g=1000.0 * abs(water_now - goal[2]),
                         executions=self.k,
                     )
-                if self.receding:
-                    e, n_plans = self.receding_run(s, pname, goal[2], gen)
-                    row(goal, f"receding-{self.receding}/{pname}", e, objective=pname,
-                        scorer=self.default_scorer, executions=n_plans)
+                for sn in self.receding_scorers if self.receding else ():
+                    # The same draws for every scorer: they differ only in their choices.
+                    rgen = torch.Generator().manual_seed(
+                        _seed(self.seed, c.run_id, c.t, pname, "receding", gi)
+                    )
+                    e, n_plans = self.receding_run(s, pname, sn, goal[2], rgen)
+                    name = f"receding-{self.receding}" + (
+                        "" if sn == self.default_scorer else f"-{sn}"
+                    )
+                    row(goal, f"{name}/{pname}", e, objective=pname, scorer=sn,
+                        executions=n_plans)
         wall = time.perf_counter() - t0
         for r in rows:
             r["wall_s"] = wall
         return rows
 
     def receding_run(
-        self, s: StartState, pname: str, goal_kg: float, gen: Any
+        self, s: StartState, pname: str, scorer: str, goal_kg: float, gen: Any
     ) -> tuple[Execution, int]:
         """Re-plan every ``receding`` control steps from the observed history: K policy
-        samples toward the goal, ranked by the default scorer on the predicted water at the
-        goal time, of which the first ``receding`` setpoints are executed."""
+        samples toward the goal, ranked by ``scorer`` on the predicted water at the goal
+        time, of which the first ``receding`` setpoints are executed."""
         import torch
 
-        planner = self.planners[(pname, self.default_scorer)]
+        planner = self.planners[(pname, scorer)]
         h, n = self.h, self.receding
         hist = s.hist.clone()
         mask = s.hist_mask.clone()
@@ -524,7 +589,7 @@ class Bench:
         while done < h:
             left = h - done
             samples = planner.sample(hist, mask, self.std.goal_vector(g_std, wnow), gen)
-            costs, _ = self.score_at(planner, hist, mask, samples, g_kg, left - 1)
+            costs, _ = planner.score(hist, mask, samples, g_kg, step=left - 1)
             j = int(torch.argmin(costs["J"][0]))
             step = min(n, left)
             e = run_forces(self.sim, samples[0, j, :step, 0].double().numpy(), self.substeps,
@@ -575,35 +640,72 @@ def simulator_scorer(sim: Any, state: bytes, substeps: int, std: Any) -> Any:
 
 @dataclass
 class Checkpoint:
-    """``control_windows.parquet``: the rows so far, tied to the inputs and options by a
-    fingerprint in the file's metadata, rewritten atomically after every start state."""
+    """``control_windows.parquet`` (the controllers' rows) and ``control_samples.parquet``
+    (every executed chunk), tied to the inputs and options by a fingerprint in the files'
+    metadata and rewritten atomically after every start state: the samples first, so that
+    the windows file, which decides what is done, never lists a state whose samples are
+    missing."""
 
     path: Path
     fingerprint: str
+    samples_path: Path | None = None
+    scorers: tuple[str, ...] = ()
+    #: Settings stored with the samples (``rmi.control.info``): what re-ranking needs.
+    info: Mapping[str, Any] | None = None
 
-    def load(self) -> list[dict[str, Any]]:
-        """The stored rows (none when the file does not exist); refuses a file of other
-        inputs, options or columns with advice, since resuming it would mix results."""
-        if not self.path.exists():
-            return []
+    def _read(self, path: Path, schema: Mapping[str, Any]) -> pl.DataFrame:
         advice = "use another --out or delete that file to start over"
         try:
-            stored = pl.read_parquet_metadata(self.path).get("rmi.control.fingerprint")
-            frame = pl.read_parquet(self.path)
+            stored = pl.read_parquet_metadata(path).get("rmi.control.fingerprint")
+            frame = pl.read_parquet(path)
         except Exception as exc:  # noqa: BLE001 - any unreadable file gets the same advice
-            raise ControlBenchError(f"{self.path} is not readable ({exc}); {advice}") from exc
+            raise ControlBenchError(f"{path} is not readable ({exc}); {advice}") from exc
         if stored != self.fingerprint:
-            raise ControlBenchError(f"{self.path} holds results of other inputs; {advice}")
-        if frame.columns != list(ROW_SCHEMA):
-            raise ControlBenchError(f"{self.path} has other columns than this version; {advice}")
-        return frame.to_dicts()
+            raise ControlBenchError(f"{path} holds results of other inputs; {advice}")
+        if frame.columns != list(schema):
+            raise ControlBenchError(f"{path} has other columns than this version; {advice}")
+        return frame
 
-    def save(self, rows: Sequence[Mapping[str, Any]]) -> None:
-        """Write every row (columns of :data:`ROW_SCHEMA`) atomically."""
-        columns = [pl.Series(c, [r.get(c) for r in rows], dtype=d) for c, d in ROW_SCHEMA.items()]
-        frame = pl.DataFrame(columns)
+    def load(self) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+        """The stored rows and sample rows (none when the files do not exist); refuses files
+        of other inputs, options or columns with advice, since resuming them would mix
+        results. Samples of a state the windows file does not list (an interruption between
+        the two writes) are dropped: that state runs again."""
+        if not self.path.exists():
+            return [], []
+        rows = self._read(self.path, ROW_SCHEMA).to_dicts()
+        samples: list[dict[str, Any]] = []
+        if self.samples_path is not None and self.samples_path.exists():
+            done = {(r["run_id"], r["t"]) for r in rows}
+            samples = [
+                r for r in self._read(self.samples_path, SAMPLE_SCHEMA).to_dicts()
+                if (r["run_id"], r["t"]) in done
+            ]
+        return rows, samples
+
+    def save(
+        self, rows: Sequence[Mapping[str, Any]], samples: Sequence[Mapping[str, Any]] = ()
+    ) -> None:
+        """Write every sample row (when there is a samples file), then every row, atomically."""
         meta = {"rmi.control.fingerprint": self.fingerprint, "rmi.version": __version__}
-        atomic_write_bytes(self.path, lambda f: frame.write_parquet(f, metadata=meta))
+        if self.samples_path is not None:
+            frame = _frame(samples, SAMPLE_SCHEMA)
+            smeta = {
+                **meta,
+                "rmi.control.scorers": json.dumps(list(self.scorers)),
+                "rmi.control.info": json.dumps(dict(self.info or {})),
+            }
+            atomic_write_bytes(
+                self.samples_path, lambda f: frame.write_parquet(f, metadata=smeta)
+            )
+        windows = _frame(rows, ROW_SCHEMA)
+        atomic_write_bytes(self.path, lambda f: windows.write_parquet(f, metadata=meta))
+
+
+def _frame(rows: Sequence[Mapping[str, Any]], schema: Mapping[str, Any]) -> pl.DataFrame:
+    return pl.DataFrame(
+        [pl.Series(c, [r.get(c) for r in rows], dtype=d) for c, d in schema.items()]
+    )
 
 
 def _full(row: Mapping[str, Any]) -> dict[str, Any]:
@@ -628,6 +730,8 @@ def run_control_bench(
     k: int = 8,
     receding: int = 8,
     scorers: Sequence[str] | None = None,
+    ensemble: bool = True,
+    receding_scorers: Sequence[str] = (),
     goal_kg: Sequence[float] = (),
     split: str = "test",
     seed: int = 0,
@@ -641,7 +745,11 @@ def run_control_bench(
     from; ``wm``: a directory of world-model runs (``rmi train-wm`` outputs) or one run;
     ``policy``: a directory holding ``diffusion/`` and/or ``flow/`` policy runs.
     ``receding``: re-planning period of the receding-horizon controller in control steps
-    (0: none). ``scorers``: world models to rank with (default every one that can).
+    (0: none). ``scorers``: world models to rank with (default every one that can);
+    ``ensemble``: with two or more, also rank by their ensemble (``ranked-ensemble``: mean
+    forecast, members' spread as a penalty). ``receding_scorers``: the scorers of the
+    receding-horizon controller (default the first scorer, W_T when present; others are
+    named ``receding-<n>-<scorer>``).
     ``goal_kg``: extra goals (kg) for every state. States already in the checkpoint are not
     run again; a larger ``states_per_size`` extends it. Returns the summary written to
     ``table_control.json``. Raises :class:`ControlBenchError` for unusable inputs, before
@@ -683,6 +791,12 @@ def run_control_bench(
     if receding > h:
         raise ControlBenchError(f"receding must be at most the chunk length {h}, got {receding}")
     scs, skipped = load_scorers(wm_p, ds, h, scorers)
+    rank_names = list(scs) + ([ENSEMBLE] if ensemble and len(scs) >= 2 else [])
+    bad = [n for n in receding_scorers if n not in rank_names]
+    if bad:
+        raise ControlBenchError(
+            f"--receding-scorers {bad}: not among the scorers {rank_names}"
+        )
     split_used = split
     if not len(ds.split_runs(split)):
         split_used = "val"
@@ -743,6 +857,8 @@ def run_control_bench(
         "split": split_used,
         "seed": seed,
         "scorers": sorted(scs),
+        "ensemble": bool(ensemble and len(scs) >= 2),
+        "receding_scorers": list(receding_scorers) or [rank_names[0]],
         "horizon": h,
         "history": hist_len,
     }
@@ -755,8 +871,12 @@ def run_control_bench(
     fingerprint = digest.hexdigest()
 
     out_p.mkdir(parents=True, exist_ok=True)
-    ckpt = Checkpoint(out_p / WINDOWS_FILE, fingerprint)
-    rows = ckpt.load()
+    ckpt = Checkpoint(
+        out_p / WINDOWS_FILE, fingerprint, out_p / SAMPLES_FILE, tuple(rank_names),
+        {"data": str(data_p), "wm": str(wm_p), "policy": str(pol_p), "split_used": split_used,
+         **options},
+    )
+    rows, sample_rows = ckpt.load()
     done = {(r["run_id"], r["t"]) for r in rows}
     seen = {
         r["state_hash"]: (r["run_id"], r["t"]) for r in rows if r["status"] not in STATE_STATUSES
@@ -793,7 +913,8 @@ def run_control_bench(
                     bench = Bench(
                         sim, substeps, ds, pols, scs, k=k, horizon=h, n_setpoints=setpoints,
                         goals_per_state=goals_per_state, given_goals=goal_kg,
-                        receding=receding, seed=seed,
+                        receding=receding, seed=seed, ensemble=ensemble,
+                        receding_scorers=receding_scorers,
                     )
                     auto: bytes | None = None
                     for c in sorted((c for c in batch if c.run_id == rid), key=lambda c: c.t):
@@ -814,7 +935,7 @@ def run_control_bench(
                                 "status": "replay_failed", "error": f"{type(exc).__name__}: {exc}",
                             }))
                             done.add((rid, c.t))
-                            ckpt.save(rows)
+                            ckpt.save(rows, sample_rows)
                             continue
                         check_anchor(sim, tr, Window(rid, size, c.t, ()))
                         state = sim.get_state()
@@ -836,11 +957,12 @@ def run_control_bench(
                             )
                             with torch.no_grad():
                                 rows.extend(_full(r) for r in bench.state_rows(s))
+                            sample_rows.extend(bench.samples)
                             seen[fp] = (rid, c.t)
                             n_new += 1
                             bar.update(1)
                         done.add((rid, c.t))
-                        ckpt.save(rows)
+                        ckpt.save(rows, sample_rows)
                         bar.set_postfix_str(f"{size} cm {rid} t={c.t}", refresh=False)
     finally:
         bar.close()
@@ -848,6 +970,7 @@ def run_control_bench(
 
     objectives = [o for o in OBJECTIVES if o in pols] + sorted(set(pols) - set(OBJECTIVES))
     summary = measures.summarise(rows, objectives, seed)
+    diag = measures.scorer_diagnostics(sample_rows, rank_names)
     states_info = {}
     for size, cs in cands.items():
         srows = [r for r in rows if r["size_cm"] == size]
@@ -890,6 +1013,7 @@ def run_control_bench(
         "setpoint_low_fraction": SETPOINT_LOW_FRACTION,
         "setpoint_fractions": [float(x) for x in np.linspace(0.0, 1.0, setpoints)],
         "scorers_skipped": skipped,
+        "sample_scorers": rank_names,
         "default_scorer": next(iter(scs)),
         "objectives": objectives,
         "unit": "g",
@@ -899,13 +1023,14 @@ def run_control_bench(
         **info,
         "states": states_info,
         "summary": summary,
+        "scorer_diagnostics": diag,
         "states_run_now": n_new,
         "wall_s": wall,
         "wall_s_per_state": wall / n_new if n_new else None,
         "version": __version__,
     }
     atomic_write_json(out_p / f"{TABLE_STEM}.json", json_safe(payload))
-    md = measures.markdown(summary, info)
+    md = measures.markdown(summary, info, diag)
     atomic_write_bytes(out_p / f"{TABLE_STEM}.md", lambda f: f.write(md.encode("utf-8")))
     tmp = out_p / f".{FIGURE_FILE}.tmp.png"
     measures.figure(rows, tmp)

@@ -161,6 +161,85 @@ def summarise(
     return out
 
 
+def scorer_diagnostics(
+    samples: Sequence[Mapping[str, Any]], scorers: Sequence[str]
+) -> dict[str, Any]:
+    """Per size and scorer, how well the forecasts of executed chunks order and size their
+    outcomes, from ``control_samples.parquet`` rows (goal-independent: predicted against
+    executed terminal M_L).
+
+    - ``sweep_spearman``: mean over states of the Spearman correlation between predicted and
+      executed M_L over the constant-setpoint sweep (does the scorer know that a firmer grip
+      keeps less water?);
+    - ``samples_spearman``: the same over the K samples of each policy and goal;
+    - ``level_mae_g``: mean |predicted - executed| M_L over every executed chunk, beside
+      ``persistence_mae_g`` (predicting no change);
+    - ``relative_mae_g``: mean over groups (one state's sweep; one policy's K samples for one
+      goal) of |(pred_i - mean pred) - (exec_i - mean exec)|, the error in the differences
+      between chunks that ranking depends on, beside ``executed_spread_g``, the mean absolute
+      deviation of the executed outcomes in the same groups (what a scorer predicting no
+      difference would score).
+    """
+    ok = [r for r in samples if r["status"] == "ok" and r["M_L_end_kg"] is not None]
+    out: dict[str, Any] = {}
+    for size in sorted({int(r["size_cm"]) for r in ok}):
+        srows = [r for r in ok if int(r["size_cm"]) == size]
+        groups: dict[tuple[Any, ...], list[Mapping[str, Any]]] = {}
+        for r in srows:
+            if r["objective"] == "recorded":
+                continue
+            key = (r["run_id"], r["t"], r["objective"], r["goal_kind"], r["goal_index"])
+            groups.setdefault(key, []).append(r)
+        per: dict[str, Any] = {}
+        for i, name in enumerate(scorers):
+            pred = np.asarray([r["pred_M_L_kg"][i] for r in srows])
+            ex = np.asarray([r["M_L_end_kg"] for r in srows])
+            now = np.asarray([r["water_now_kg"] for r in srows])
+            rho: dict[str, list[float]] = {"constant": [], "policy": []}
+            rel, spread = [], []
+            for key, g in groups.items():
+                p = np.asarray([r["pred_M_L_kg"][i] for r in g])
+                e = np.asarray([r["M_L_end_kg"] for r in g])
+                c = spearman(p, e)
+                if c is not None:
+                    rho["constant" if key[2] == "constant" else "policy"].append(c)
+                rel.append(np.mean(np.abs((p - p.mean()) - (e - e.mean()))))
+                spread.append(np.mean(np.abs(e - e.mean())))
+            per[name] = {
+                "sweep_spearman": float(np.mean(rho["constant"])) if rho["constant"] else None,
+                "samples_spearman": float(np.mean(rho["policy"])) if rho["policy"] else None,
+                "level_mae_g": float(1000.0 * np.mean(np.abs(pred - ex))),
+                "persistence_mae_g": float(1000.0 * np.mean(np.abs(now - ex))),
+                "relative_mae_g": float(1000.0 * np.mean(rel)) if rel else None,
+                "executed_spread_g": float(1000.0 * np.mean(spread)) if spread else None,
+                "chunks": int(len(srows)),
+            }
+        out[str(size)] = per
+    return out
+
+
+def diagnostics_markdown(diag: Mapping[str, Any]) -> list[str]:
+    """The scorer diagnostics of :func:`scorer_diagnostics` as Markdown lines."""
+    if not diag:
+        return []
+    lines = [
+        "*Scorers against executed outcomes (every executed chunk; terminal M_L)*",
+        "",
+        "| Size | Scorer | Spearman, setpoint sweep | Spearman, policy samples | level MAE (g) "
+        "| persistence MAE (g) | relative MAE (g) | executed spread (g) |",
+        "|---|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for size, per in diag.items():
+        for name, d in per.items():
+            lines.append(
+                f"| {size} cm | {name} | {_f(d['sweep_spearman'])} | "
+                f"{_f(d['samples_spearman'])} | {_f(d['level_mae_g'])} | "
+                f"{_f(d['persistence_mae_g'])} | {_f(d['relative_mae_g'])} | "
+                f"{_f(d['executed_spread_g'])} |"
+            )
+    return lines + [""]
+
+
 def _count(xs: Sequence[str]) -> dict[str, int]:
     out: dict[str, int] = {}
     for x in xs:
@@ -189,8 +268,13 @@ def _ci(c: Sequence[float | None], d: int = 2) -> str:
     return f"[{_f(c[0], d)}, {_f(c[1], d)}]"
 
 
-def markdown(summary: Mapping[str, Any], info: Mapping[str, Any]) -> str:
-    """``table_control.md``: per goal kind and size, one row per controller."""
+def markdown(
+    summary: Mapping[str, Any],
+    info: Mapping[str, Any],
+    scorers: Mapping[str, Any] | None = None,
+) -> str:
+    """``table_control.md``: per goal kind and size, one row per controller; then the scorer
+    diagnostics ``scorers`` (:func:`scorer_diagnostics`) when given."""
     titles = {
         "drawn": "Goals drawn inside the reachable interval",
         "logged": "Logged goal (M_L at t + H, reached by the recorded chunk)",
@@ -245,6 +329,7 @@ def markdown(summary: Mapping[str, Any], info: Mapping[str, Any]) -> str:
                             f"{_f(e['recorded_beats_persistence'])} |"
                         )
             lines.append("")
+    lines += diagnostics_markdown(scorers or {})
     lines += [
         f"Start states: {info['split_used']} split"
         + (" (the test split is empty)" if info["split_used"] != info["split"] else "")
@@ -293,5 +378,5 @@ def figure(rows: Sequence[Mapping[str, Any]], path: Path) -> None:
     plt.close(fig)
 
 
-__all__ = ["BOOTSTRAP", "TIE_G", "bootstrap_ci", "figure", "markdown", "rankdata", "spearman",
-           "summarise"]
+__all__ = ["BOOTSTRAP", "TIE_G", "bootstrap_ci", "diagnostics_markdown", "figure", "markdown",
+           "rankdata", "scorer_diagnostics", "spearman", "summarise"]

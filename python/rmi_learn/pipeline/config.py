@@ -206,6 +206,7 @@ class ControlOptions(StageOptions):
     k: int | None = _count(1)
     receding: int | None = _count(0)
     scorers: str | None = _text()
+    receding_scorers: str | None = _text()
     split: str | None = _text()
     seed: int | None = _count(0)
 

@@ -44,24 +44,36 @@ STAGES_SUBDIR = "stages"
 
 @dataclass(frozen=True)
 class ModelRun:
-    """One world model a stage trains: the model and the ablation settings of its run."""
+    """One world model a stage trains: the model, the ablation settings of its run, and the
+    fixed horizon of a lookahead model trained on windows of that length (None: its
+    default)."""
 
     model: str
     shuffle_actions: bool = False
     state_groups: str = "ALL"
+    horizon: int | None = None
 
     def flags(self) -> list[str]:
         """The ``rmi train-wm`` options of this run."""
         out = ["--model", self.model]
         out += ["--shuffle-actions"] if self.shuffle_actions else []
         out += ["--state-groups", self.state_groups] if self.state_groups != "ALL" else []
+        out += ["--model-arg", f"horizon={self.horizon}"] if self.horizon is not None else []
         return out
+
+    def model_args(self) -> dict[str, Any] | None:
+        """Constructor overrides of this run."""
+        return {"horizon": self.horizon} if self.horizon is not None else None
 
 
 #: The world models of Tables II and the lookahead diagnostic, by run directory name.
 MAIN_MODELS: dict[str, ModelRun] = {
     name: ModelRun(name) for name in ("state-gru", "ac-gru", "arx", "ac-mlp", "transformer")
 }
+#: Scorers of the policies' 32-step chunks for ranking (``rmi control-bench``): Linear-ARX
+#: fitted on 32-step windows, whose forecasts order the executed outcomes of policy samples
+#: best among the trained models (docs/control.md).
+SCORER_MODELS: dict[str, ModelRun] = {"arx-32": ModelRun("arx", horizon=32)}
 #: Ablations: shuffled action chunks (Table II last row, diagnostic) and state groups (Table IV).
 ABLATION_MODELS: dict[str, ModelRun] = {
     "ac-gru-shuffled": ModelRun("ac-gru", shuffle_actions=True),
@@ -161,6 +173,7 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
                 out=dest,
                 state_groups=run.state_groups,
                 shuffle_actions=run.shuffle_actions,
+                model_args=run.model_args(),
                 resume=resume,
                 progress=False,
                 **wm_opts,
@@ -260,8 +273,9 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
             + t
             + ["--no-progress"]
         )
-        if "scorers" in opts:
-            opts["scorers"] = [n.strip() for n in opts["scorers"].split(",") if n.strip()]
+        for key in ("scorers", "receding_scorers"):
+            if key in opts:
+                opts[key] = [n.strip() for n in opts[key].split(",") if n.strip()]
 
         def run() -> object:
             return run_control_bench(
@@ -307,7 +321,11 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
                 )
             ],
         ),
-        Stage("world-models", "train the world models", train_wm(MAIN_MODELS)),
+        Stage(
+            "world-models",
+            "train the world models",
+            train_wm({**MAIN_MODELS, **SCORER_MODELS}),
+        ),
     ]
     if cfg.ablations:
         stages.append(Stage("ablations", "train the ablation models", train_wm(ABLATION_MODELS)))

@@ -70,12 +70,14 @@ Scorer = Callable[[Tensor, Tensor, Tensor], tuple[Tensor, Tensor, Tensor]]
 
 @dataclass(frozen=True)
 class CostWeights:
-    """Weights of the combined cost (paper values)."""
+    """Weights of the combined cost (paper values). ``disagreement`` weighs ``J_D``, the
+    spread of an ensemble's water forecasts (zero for a single scorer)."""
 
     water: float = 1.0
     force: float = 1e-4
     slip: float = 0.05
     jerk: float = 0.1
+    disagreement: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -135,20 +137,24 @@ def cost_terms(
     u_phys: Tensor,
     p_fric: Tensor,
     weights: CostWeights | None = None,
+    water_spread_kg: Tensor | None = None,
 ) -> dict[str, Tensor]:
     """Cost terms and J for a batch of chunks.
 
     ``water_terminal_kg`` (...,) predicted M_L after the last command; ``goal_kg`` (...,);
-    ``u_phys`` (..., H, 1) force setpoints in N; ``p_fric`` (..., H, 4) friction probabilities.
-    Returns ``J_M`` (g), ``J_F`` (N), ``J_S`` (-), ``J_U`` and ``J``, each (...,).
+    ``u_phys`` (..., H, 1) force setpoints in N; ``p_fric`` (..., H, 4) friction probabilities;
+    ``water_spread_kg`` (...,) the standard deviation of an ensemble's terminal M_L forecasts
+    (None: a single scorer). Returns ``J_M`` (g), ``J_D`` (g), ``J_F`` (N), ``J_S`` (-),
+    ``J_U`` and ``J``, each (...,).
     """
     w = weights or CostWeights()
     j_m = 1000.0 * (water_terminal_kg - goal_kg).abs()
+    j_d = torch.zeros_like(j_m) if water_spread_kg is None else 1000.0 * water_spread_kg
     j_f = u_phys[..., FORCE].amax(-1)
     j_s = p_fric[..., list(SLIP_CLASSES)].sum(-1).mean(-1)
     j_u = jerk(u_phys)
-    j = w.water * j_m + w.force * j_f + w.slip * j_s + w.jerk * j_u
-    return {"J_M": j_m, "J_F": j_f, "J_S": j_s, "J_U": j_u, "J": j}
+    j = w.water * j_m + w.disagreement * j_d + w.force * j_f + w.slip * j_s + w.jerk * j_u
+    return {"J_M": j_m, "J_D": j_d, "J_F": j_f, "J_S": j_s, "J_U": j_u, "J": j}
 
 
 @dataclass
@@ -234,24 +240,19 @@ class Planner:
         out: Tensor = phys.view(b, self.k, cfg.horizon, cfg.action_dim)
         return out
 
-    @torch.no_grad()
     def score(
-        self, hist: Tensor, hist_mask: Tensor, u_phys: Tensor, goal_kg: Tensor
+        self,
+        hist: Tensor,
+        hist_mask: Tensor,
+        u_phys: Tensor,
+        goal_kg: Tensor,
+        step: int | None = None,
     ) -> tuple[dict[str, Tensor], Tensor]:
-        """Costs of physical chunks ``u_phys`` (B, M, H, 1) for B windows: ((B, M) each, M_L kg).
-
-        One batched world-model call over B * M rollouts.
-        """
-        b, m, h, _ = u_phys.shape
-        if not getattr(self.scorer, "shares_history", False):
-            hist = hist.repeat_interleave(m, dim=0)
-            hist_mask = hist_mask.repeat_interleave(m, dim=0)
-        z, _p_c, p_f = self.scorer(hist, hist_mask, self.std.u_to_std(u_phys.reshape(b * m, h, -1)))
-        water = self.std.water_to_kg(z[:, h - 1, WATER]).view(b, m)
-        costs = cost_terms(
-            water, goal_kg[:, None].expand(b, m), u_phys, p_f.view(b, m, h, -1), self.weights
+        """Costs of physical chunks ``u_phys`` (B, M, H, 1) for B windows: ((B, M) each, M_L kg);
+        see :func:`score_chunks`."""
+        return score_chunks(
+            self.scorer, self.std, hist, hist_mask, u_phys, goal_kg, self.weights, step
         )
-        return costs, water
 
     @torch.no_grad()
     def plan(
@@ -294,6 +295,44 @@ class Planner:
         )
 
 
+@torch.no_grad()
+def score_chunks(
+    scorer: Scorer,
+    std: Standardiser,
+    hist: Tensor,
+    hist_mask: Tensor,
+    u_phys: Tensor,
+    goal_kg: Tensor,
+    weights: CostWeights | None = None,
+    step: int | None = None,
+) -> tuple[dict[str, Tensor], Tensor]:
+    """Costs of physical chunks ``u_phys`` (B, M, H, 1) for B windows (``hist``/``hist_mask``
+    (B, L, 23)) against goals ``goal_kg`` (B,): ((B, M) each, predicted M_L in kg).
+
+    The water term compares the forecast after command ``step`` (0-based; default the last,
+    H - 1) with the goal. One batched scorer call over B * M rollouts; an
+    :class:`EnsembleScorer` adds the spread of its members' forecasts as ``J_D``.
+    """
+    b, m, h, _ = u_phys.shape
+    at = h - 1 if step is None else step
+    if not getattr(scorer, "shares_history", False):
+        hist = hist.repeat_interleave(m, dim=0)
+        hist_mask = hist_mask.repeat_interleave(m, dim=0)
+    actions = std.u_to_std(u_phys.reshape(b * m, h, -1))
+    spread = None
+    if isinstance(scorer, EnsembleScorer):
+        members, p_f = scorer.members_water(hist, hist_mask, actions, at)
+        kg = std.water_to_kg(members).view(b, m, -1)
+        water, spread = kg.mean(-1), kg.std(-1, unbiased=False)
+    else:
+        z, _p_c, p_f = scorer(hist, hist_mask, actions)
+        water = std.water_to_kg(z[:, at, WATER]).view(b, m)
+    costs = cost_terms(
+        water, goal_kg[:, None].expand(b, m), u_phys, p_f.view(b, m, h, -1), weights, spread
+    )
+    return costs, water
+
+
 def world_model_scorer(model: torch.nn.Module) -> Scorer:
     """Adapt a :class:`rmi_learn.world_models.WorldModel` (e.g. the Transformer W_T) to
     :data:`Scorer`: free rollout in eval mode, standardised z, contact and friction
@@ -306,6 +345,48 @@ def world_model_scorer(model: torch.nn.Module) -> Scorer:
 
     score.shares_history = bool(getattr(model, "shares_history", False))  # type: ignore[attr-defined]
     return score
+
+
+class EnsembleScorer:
+    """Several scorers as one: the mean of their forecasts, and in :meth:`Planner.score` the
+    spread (standard deviation over members) of their terminal water forecasts as the
+    disagreement cost ``J_D``, so that a chunk on which the models disagree ranks lower.
+
+    Called as a :data:`Scorer`, it returns the members' mean forecast and probabilities.
+    """
+
+    shares_history = False
+
+    def __init__(self, members: dict[str, Scorer]) -> None:
+        if len(members) < 2:
+            raise ValueError("an ensemble needs at least two scorers")
+        self.members = dict(members)
+
+    def _each(
+        self, hist: Tensor, hist_mask: Tensor, actions: Tensor
+    ) -> list[tuple[Tensor, Tensor, Tensor]]:
+        n_hist, n = hist.shape[0], actions.shape[0]
+        outs = []
+        for scorer in self.members.values():
+            if getattr(scorer, "shares_history", False) and n_hist != n:
+                raise ValueError("EnsembleScorer takes one history per chunk")
+            outs.append(scorer(hist, hist_mask, actions))
+        return outs
+
+    def __call__(
+        self, hist: Tensor, hist_mask: Tensor, actions: Tensor
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        outs = self._each(hist, hist_mask, actions)
+        return tuple(torch.stack(x).mean(0) for x in zip(*outs, strict=True))  # type: ignore[return-value]
+
+    def members_water(
+        self, hist: Tensor, hist_mask: Tensor, actions: Tensor, step: int
+    ) -> tuple[Tensor, Tensor]:
+        """Each member's standardised M_L forecast after command ``step``, (N, members), and
+        the members' mean friction probabilities (N, H, 4)."""
+        outs = self._each(hist, hist_mask, actions)
+        water = torch.stack([z[:, step, WATER] for z, _, _ in outs], dim=-1)
+        return water, torch.stack([p for _, _, p in outs]).mean(0)
 
 
 # --------------------------------------------------------------------------------------

@@ -30,6 +30,18 @@ _GRU_MLP_DEFAULTS: dict[str, Any] = {
     "select": "val_water_mae_g@64",
     "loss_scale": "change",
 }
+def select_metric(metric: str, horizon: int) -> str:
+    """The validation metric that selects the weights for windows of ``horizon`` steps: a
+    water error at step 64 becomes the one at the largest reported step within the horizon
+    (a 32-step lookahead model is chosen at 0.64 s)."""
+    from rmi_learn.world_models.evaluation import HORIZON_STEPS
+
+    if not metric.startswith("val_water_mae_g@"):
+        return metric
+    step = max((s for s in HORIZON_STEPS if s <= horizon), default=HORIZON_STEPS[0])
+    return f"val_water_mae_g@{step}"
+
+
 #: Per-model optimisation defaults (paper Sec. IV, supplement S3).
 DEFAULTS: dict[str, dict[str, Any]] = {
     "state-gru": _GRU_MLP_DEFAULTS,
@@ -53,11 +65,12 @@ RESUME_FIXED = (
     "water_weight",
     "huber_delta",
     "loss_scale",
+    "horizon",
 )
 #: Huber threshold of the loss in standardised units (torch's default).
 HUBER_DELTA = 1.0
 #: Values of those settings in runs written before they were recorded.
-RESUME_LEGACY: dict[str, Any] = {"huber_delta": HUBER_DELTA, "loss_scale": "state"}
+RESUME_LEGACY: dict[str, Any] = {"huber_delta": HUBER_DELTA, "loss_scale": "state", "horizon": 64}
 #: How the continuous channels' errors are scaled in the loss (see ``--loss-scale``).
 LOSS_SCALES = ("state", "change")
 #: Debug mode: windows kept from each split, batch size, teacher-forcing decay epochs.
@@ -103,6 +116,7 @@ def train(
     progress: bool = True,
     model_args: dict[str, Any] | None = None,
     tensorboard: bool = False,
+    horizon: int | None = None,
 ) -> dict[str, Any]:
     """Train one world model into ``out`` and return the run summary (see module doc).
 
@@ -113,7 +127,10 @@ def train(
     validation free-rollout water MAE (g) at 1.28 s (Transformer: mean over
     0.16/0.32/0.64/1.28 s). Linear-ARX is fitted in closed form; the Baseline only
     writes its config. ``model_args`` overrides constructor arguments (e.g. ``hidden``,
-    ``d_model``); an unknown name raises TypeError. ``huber_delta`` is the Huber threshold
+    ``d_model``); an unknown name raises TypeError. ``horizon``: the forecast length of the
+    training and validation windows in control steps (default: a lookahead model's fixed
+    horizon, else 64); a model that ranks 32-step chunks can learn from 32-step windows,
+    of which a run has more. ``huber_delta`` is the Huber threshold
     in standardised units (default 1). ``loss_scale="change"`` (default for the GRU and
     MLP models; ``"state"``, the paper's, for the Transformer) measures each continuous
     channel's error in units of its RMS change over the horizon in the training windows
@@ -131,6 +148,7 @@ def train(
     import torch
 
     from rmi_learn.data.dataset import load_dataset
+    from rmi_learn.data.schema import HORIZON
     from rmi_learn.trainer import TrainConfig, Trainer, count_parameters, seed_everything
     from rmi_learn.world_models import build
     from rmi_learn.world_models.common import N_Z, WATER, ShuffledActions, change_scale, wm_loss
@@ -149,8 +167,23 @@ def train(
     out = Path(out)
     ds = load_dataset(data)
     stats = ds.stats
-    train_ws: Any = ds.windows("train", size_cm=size_cm)
-    val_ws: Any = ds.windows("val", size_cm=size_cm)
+    seed_everything(seed, deterministic)
+    kw: dict[str, Any] = {"kind": model, **(model_args or {})}
+    if model != "baseline" and model != "arx":
+        kw["state_groups"] = state_groups
+    net = build(kw)
+    # A lookahead model of a fixed horizon (e.g. --model-arg horizon=32, to score the
+    # policies' chunks) learns from windows of that horizon.
+    fixed = getattr(net, "fixed_horizon", None)
+    if horizon is None:
+        horizon = fixed or HORIZON
+    if horizon < 1 or (fixed is not None and horizon != fixed):
+        raise ValueError(
+            f"horizon {horizon}: must be >= 1"
+            + (f" and equal the {model} model's fixed horizon {fixed}" if fixed else "")
+        )
+    train_ws: Any = ds.windows("train", size_cm=size_cm, horizon=horizon)
+    val_ws: Any = ds.windows("val", size_cm=size_cm, horizon=horizon)
     if len(train_ws) == 0:
         raise ValueError(f"no training windows in {data} (size {size_cm})")
     if shuffle_actions:
@@ -163,11 +196,6 @@ def train(
         batch_size = min(batch_size, 8)
     z_std = stats.z_std
 
-    seed_everything(seed, deterministic)
-    kw: dict[str, Any] = {"kind": model, **(model_args or {})}
-    if model != "baseline" and model != "arx":
-        kw["state_groups"] = state_groups
-    net = build(kw)
     extra: dict[str, Any] = {
         "data": str(Path(data).resolve()),
         "size_cm": size_cm,
@@ -186,7 +214,8 @@ def train(
 
     def validate(m: torch.nn.Module, state: Any = None) -> dict[str, float]:
         if len(val_ws) == 0:
-            return {"val_water_mae_g@64": float("nan"), "val_water_mae_g_mean": float("nan")}
+            return {select_metric("val_water_mae_g@64", horizon): float("nan"),
+                    "val_water_mae_g_mean": float("nan")}
         r = evaluate_rollouts(
             m, val_ws, z_std, max_windows=val_windows, device=device, loss=val_loss
         )
@@ -225,7 +254,7 @@ def train(
         # it, the free-rollout validation metric judges a model still trained on fed targets.
         min_epochs=tf_epochs if net.recurrent else 0,
         select_after=tf_epochs if net.recurrent else 0,
-        select_metric=d["select"],
+        select_metric=select_metric(d["select"], horizon),
         select_mode="min",
         seed=seed,
         deterministic=deterministic,
@@ -344,8 +373,8 @@ def _closed_form(
         "stopped_early": False,
         "epochs": 1,
         "steps": 0,
-        "select_metric": "val_water_mae_g@64",
-        "best_metric": metrics.get("val_water_mae_g@64"),
+        "select_metric": select_metric("val_water_mae_g@64", train_ws.horizon),
+        "best_metric": metrics.get(select_metric("val_water_mae_g@64", train_ws.horizon)),
         "best_epoch": 1,
         "params": 0,
         "wall_s": fit_s,
