@@ -323,6 +323,7 @@ def test_every_executed_chunk_is_kept_with_every_scorers_forecast(
     diag = res["scorer_diagnostics"]["8"]
     assert set(diag) == set(scorers) and diag["ac-gru"]["chunks"] == samples.height
     assert "Spearman, setpoint sweep" in (out / "table_control.md").read_text()
+    assert (out / "fig_control_scorers.png").stat().st_size > 0
     # Ranking the stored samples again with the same scorers makes the same choices.
     from rmi_learn import world_models as models
     from rmi_learn.control.rerank import rerank

@@ -50,6 +50,7 @@ WINDOWS_FILE = "control_windows.parquet"
 SAMPLES_FILE = "control_samples.parquet"
 TABLE_STEM = "table_control"
 FIGURE_FILE = "fig_control.png"
+SCORERS_FIGURE_FILE = "fig_control_scorers.png"
 OBJECTIVES: tuple[str, ...] = ("diffusion", "flow")
 #: Row statuses of a start state that ran no controller.
 STATE_STATUSES = ("duplicate", "replay_failed")
@@ -740,9 +741,10 @@ def run_control_bench(
     log: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Run the goal-reaching benchmark (see :mod:`rmi_learn.control`) and write
-    ``control_windows.parquet``, ``table_control.{md,json}`` and ``fig_control.png`` to
-    ``out``. ``runs``: the sweep output (``index.parquet``) the dataset ``data`` was built
-    from; ``wm``: a directory of world-model runs (``rmi train-wm`` outputs) or one run;
+    ``control_windows.parquet``, ``control_samples.parquet``, ``table_control.{md,json}``,
+    ``fig_control.png`` and ``fig_control_scorers.png`` to ``out``. ``runs``: the sweep
+    output (``index.parquet``) the dataset ``data`` was built from; ``wm``: a directory of
+    world-model runs (``rmi train-wm`` outputs) or one run;
     ``policy``: a directory holding ``diffusion/`` and/or ``flow/`` policy runs.
     ``receding``: re-planning period of the receding-horizon controller in control steps
     (0: none). ``scorers``: world models to rank with (default every one that can);
@@ -1035,6 +1037,9 @@ def run_control_bench(
     tmp = out_p / f".{FIGURE_FILE}.tmp.png"
     measures.figure(rows, tmp)
     os.replace(tmp, out_p / FIGURE_FILE)
+    tmp = out_p / f".{SCORERS_FIGURE_FILE}.tmp.png"
+    measures.figure_scorers(sample_rows, rank_names, tmp)
+    os.replace(tmp, out_p / SCORERS_FIGURE_FILE)
     say(f"control-bench: {n_new} start states run in {wall:.1f} s -> {out_p}")
     return payload
 

@@ -378,5 +378,44 @@ def figure(rows: Sequence[Mapping[str, Any]], path: Path) -> None:
     plt.close(fig)
 
 
-__all__ = ["BOOTSTRAP", "TIE_G", "bootstrap_ci", "diagnostics_markdown", "figure", "markdown",
-           "rankdata", "scorer_diagnostics", "spearman", "summarise"]
+def figure_scorers(
+    samples: Sequence[Mapping[str, Any]], scorers: Sequence[str], path: Path
+) -> None:
+    """Predicted against executed change of the retained water over the chunk (g), one panel
+    per scorer and sponge size, every executed chunk of ``control_samples.parquet`` (setpoint
+    sweep, recorded chunk, policy samples), with the identity line; as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = [r for r in samples if r["status"] == "ok" and r["M_L_end_kg"] is not None]
+    sizes = sorted({int(r["size_cm"]) for r in ok}) or [0]
+    names = list(scorers) or ["-"]
+    fig, axes = plt.subplots(
+        len(names), len(sizes), figsize=(3.2 * len(sizes), 3.0 * len(names)), squeeze=False
+    )
+    for i, name in enumerate(names):
+        for j, size in enumerate(sizes):
+            ax = axes[i][j]
+            rows = [r for r in ok if int(r["size_cm"]) == size]
+            if rows and name in scorers:
+                now = np.asarray([r["water_now_kg"] for r in rows])
+                ex = 1000.0 * (np.asarray([r["M_L_end_kg"] for r in rows]) - now)
+                k = list(scorers).index(name)
+                pr = 1000.0 * (np.asarray([r["pred_M_L_kg"][k] for r in rows]) - now)
+                ax.scatter(ex, pr, s=6, alpha=0.5)
+                lo, hi = float(min(ex.min(), pr.min())), float(max(ex.max(), pr.max()))
+                ax.plot([lo, hi], [lo, hi], color="k", lw=0.8)
+            ax.set_title(f"{name}, {size} cm", fontsize=9)
+            ax.set_xlabel("executed change of M_L (g)", fontsize=8)
+            ax.set_ylabel("predicted (g)", fontsize=8)
+            ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+__all__ = ["BOOTSTRAP", "TIE_G", "bootstrap_ci", "diagnostics_markdown", "figure",
+           "figure_scorers", "markdown", "rankdata", "scorer_diagnostics", "spearman",
+           "summarise"]
