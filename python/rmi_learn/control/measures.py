@@ -191,15 +191,17 @@ def scorer_diagnostics(
             key = (r["run_id"], r["t"], r["objective"], r["goal_kind"], r["goal_index"])
             groups.setdefault(key, []).append(r)
         per: dict[str, Any] = {}
+        ex = np.asarray([r["M_L_end_kg"] for r in srows])
+        now = np.asarray([r["water_now_kg"] for r in srows])
+        persistence_g = float(1000.0 * np.mean(np.abs(now - ex)))
+        executed = {key: np.asarray([r["M_L_end_kg"] for r in g]) for key, g in groups.items()}
         for i, name in enumerate(scorers):
             pred = np.asarray([r["pred_M_L_kg"][i] for r in srows])
-            ex = np.asarray([r["M_L_end_kg"] for r in srows])
-            now = np.asarray([r["water_now_kg"] for r in srows])
             rho: dict[str, list[float]] = {"constant": [], "policy": []}
             rel, spread = [], []
             for key, g in groups.items():
                 p = np.asarray([r["pred_M_L_kg"][i] for r in g])
-                e = np.asarray([r["M_L_end_kg"] for r in g])
+                e = executed[key]
                 c = spearman(p, e)
                 if c is not None:
                     rho["constant" if key[2] == "constant" else "policy"].append(c)
@@ -209,7 +211,7 @@ def scorer_diagnostics(
                 "sweep_spearman": float(np.mean(rho["constant"])) if rho["constant"] else None,
                 "samples_spearman": float(np.mean(rho["policy"])) if rho["policy"] else None,
                 "level_mae_g": float(1000.0 * np.mean(np.abs(pred - ex))),
-                "persistence_mae_g": float(1000.0 * np.mean(np.abs(now - ex))),
+                "persistence_mae_g": persistence_g,
                 "relative_mae_g": float(1000.0 * np.mean(rel)) if rel else None,
                 "executed_spread_g": float(1000.0 * np.mean(spread)) if spread else None,
                 "chunks": int(len(srows)),

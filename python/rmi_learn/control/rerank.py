@@ -22,7 +22,7 @@ import numpy as np
 import polars as pl
 
 from rmi_learn.control import measures
-from rmi_learn.control.bench import SAMPLES_FILE, TABLE_STEM, ControlBenchError
+from rmi_learn.control.bench import SAMPLES_FILE, ControlBenchError
 
 
 @dataclass(frozen=True)
@@ -56,10 +56,7 @@ def load_samples(control_dir: Path) -> tuple[pl.DataFrame, dict[str, Any]]:
         raise ControlBenchError(f"{control_dir} holds no executed samples ({SAMPLES_FILE})")
     meta = pl.read_parquet_metadata(samples).get("rmi.control.info")
     if meta is None:
-        table = control_dir / f"{TABLE_STEM}.json"
-        if not table.exists():
-            raise ControlBenchError(f"{samples} does not say which benchmark wrote it")
-        meta = table.read_text()
+        raise ControlBenchError(f"{samples} does not say which benchmark wrote it")
     info = json.loads(meta)
     return pl.read_parquet(samples), {k: info[k] for k in INFO_KEYS}
 
@@ -96,9 +93,10 @@ def rerank(
         for i, a in enumerate(ws.anchors.tolist()):
             where[(ds.run_ids[int(ds.row_run[a])], int(ds.row_t[a]))] = (int(size), i)
     out: dict[str, list[RankedGroup]] = {name: [] for name in scorers}
+    batches: dict[tuple[str, int], dict[str, Any]] = {}  # one window per state, many groups
     keys = ["size_cm", "run_id", "t", "goal_kind", "goal_index", "objective"]
     for key, g in ok.sort([*keys, "sample_index"]).group_by(keys, maintain_order=True):
-        size, run_id, t, kind, gi, obj = (x for x in key)
+        _size, run_id, t, kind, gi, obj = key
         state = (str(run_id), int(t))  # type: ignore[call-overload]
         if state not in where:
             raise ControlBenchError(
@@ -107,7 +105,9 @@ def rerank(
         if int(g["sample_index"][0]) != 0:
             raise ControlBenchError(f"group {key} lacks its first sample")
         s, wi = where[state]
-        b = windows[s].batch([wi])
+        if state not in batches:
+            batches[state] = windows[s].batch([wi])
+        b = batches[state]
         u = torch.as_tensor(np.stack(g["forces_N"].to_list()), dtype=torch.float32)
         u = u.view(1, -1, h, 1)
         goal = float(g["goal_kg"][0])
