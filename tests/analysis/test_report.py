@@ -62,6 +62,23 @@ def test_report_puts_our_numbers_beside_the_papers(tmp_path: Path) -> None:
     assert 'class="paper"' in page.read_text()
 
 
+def test_report_shows_the_goal_reaching_benchmark_when_it_ran(tmp_path: Path) -> None:
+    md, _ = write_report(tmp_path)
+    assert "Goal-reaching control" not in md.read_text()  # a preset without the stage
+    ctrl = tmp_path / "control"
+    ctrl.mkdir()
+    (ctrl / "table_control.md").write_text(
+        "**Goal-reaching benchmark**\n\n| Controller | n | median |\n|---|---:|---:|\n"
+        "| refined-arx-32/flow | 4 | 1.25 |\n"
+    )
+    (ctrl / "fig_control.png").write_bytes(b"\x89PNG fake")
+    md, _ = write_report(tmp_path)
+    text = md.read_text()
+    assert "Goal-reaching control" in text and "| refined-arx-32/flow | 4 | 1.25 |" in text
+    assert "figures/fig_control.png" in text and "fig_control_scorers" not in text
+    assert (tmp_path / "report" / "figures" / "fig_control.png").exists()
+
+
 def test_doc_escapes_html() -> None:
     d = Doc()
     d.h(1, "t")

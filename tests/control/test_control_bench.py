@@ -178,7 +178,9 @@ def test_benchmark_invariants_threads_and_resume(inputs: dict[str, Path], tmp_pa
     rows = a.to_dicts()
     ctrls = {r["controller"] for r in rows}
     assert {"recorded", "constant-best", "first-sample/flow", "best-of-k/flow",
-            "ranked-ac-gru/flow", "receding-16/flow"} <= ctrls
+            "ranked-ac-gru/flow", "receding-16/flow", "refined-ac-gru/flow",
+            "receding-16-refined-ac-gru/flow", "model-ac-gru",
+            "receding-16-model-ac-gru"} <= ctrls
     assert all(r["status"] == "ok" for r in rows)
     by = {(r["goal_kind"], r["goal_index"], r["controller"]): r for r in rows}
     for (kind, gi, ctrl), r in by.items():
@@ -201,6 +203,36 @@ def test_benchmark_invariants_threads_and_resume(inputs: dict[str, Path], tmp_pa
     assert again["states_run_now"] == 0 and _rows(tmp_path / "t1").equals(a, null_equal=True)
 
 
+def test_a_subset_of_controllers_executes_only_what_it_needs(
+    inputs: dict[str, Path], tmp_path: Path
+) -> None:
+    # Same states, goals and draws as the full benchmark: the chosen controllers' rows match
+    # it, and without best-of-K no policy sample is kept (their groups would be partial).
+    kw = dict(states_per_size=1, goals_per_state=1, setpoints=2, k=3, receding=16,
+              refine_metrics=["smooth", "l2"], progress=False)
+    args = [inputs[n] for n in ("runs", "data", "wm", "policy")]
+    run_control_bench(*args, tmp_path / "all", **kw)  # type: ignore[arg-type]
+    part = ["first-sample", "ranked", "refined", "receding-refined"]
+    res = run_control_bench(*args, tmp_path / "part", controllers=part,
+                            **kw)  # type: ignore[arg-type]
+    assert res["controllers"] == part
+    full, sub = _rows(tmp_path / "all"), _rows(tmp_path / "part")
+    ctrls = set(sub["controller"].to_list())
+    assert ctrls == {"recorded", "constant-best", "first-sample/flow", "ranked-ac-gru/flow",
+                     "refined-ac-gru/flow", "refined-l2-ac-gru/flow",
+                     "receding-16-refined-ac-gru/flow"}
+    keys = ["goal_kind", "goal_index", "controller"]
+    cols = ["M_L_end_kg", "err_g", "sample_index", "pred_err_g"]
+    same = sub.select(keys + cols).join(full.select(keys + cols), on=keys, suffix="_all")
+    assert same.height == sub.height
+    for c in cols:
+        assert same[c].equals(same[f"{c}_all"], null_equal=True), c
+    ranked = sub.filter(pl.col("controller") == "ranked-ac-gru/flow")
+    assert ranked["spearman"].null_count() == ranked.height
+    samples = pl.read_parquet(tmp_path / "part" / SAMPLES_FILE)
+    assert set(samples["objective"].to_list()) == {"constant", "recorded"}
+
+
 @pytest.mark.parametrize(
     "extra,needle",
     [
@@ -209,6 +241,11 @@ def test_benchmark_invariants_threads_and_resume(inputs: dict[str, Path], tmp_pa
         (["--goal-kg", "50"], "water present"),
         (["--receding", "40"], "at most the chunk length"),
         (["--receding-scorers", "nope"], "not among the scorers"),
+        (["--refine-scorers", "nope"], "not among the scorers"),
+        (["--refine-metrics", "cubic"], "distinct metrics"),
+        (["--refine-metrics", "l2,l2"], "distinct metrics"),
+        (["--controllers", "ranked,oracle"], "choose among"),
+        (["--sizes", "9"], "start states for sizes"),
     ],
 )
 def test_bad_inputs_exit_2_with_one_line(

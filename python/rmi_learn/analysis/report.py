@@ -668,6 +668,35 @@ def _section_closed_loop(doc: Doc, out: Path) -> None:
     doc.p("Per window and chunk: `closed_loop/closed_loop_windows.parquet`.")
 
 
+def _section_control(doc: Doc, out: Path, figs: Path) -> None:
+    """The goal-reaching benchmark (``control/``), when the preset runs it."""
+    ctrl = out / "control"
+    md = ctrl / "table_control.md"
+    if not md.exists():
+        return
+    doc.h(2, "Goal-reaching control: every controller executed in the simulator")
+    doc.p(
+        "From held-out start states, each controller's force-setpoint chunk is executed in the "
+        "engine toward a water goal drawn inside the interval a constant grip reaches; the "
+        "error is the executed terminal |M_L - g| in grams (docs/control.md)."
+    )
+    for kind, val in _md_blocks(md.read_text(encoding="utf-8")):
+        if kind == "table":
+            doc.table(val[0], val[1])
+        else:
+            doc.p(val)
+    for name, caption in (
+        ("fig_control.png", "Executed error per controller and sponge size"),
+        ("fig_control_scorers.png", "Predicted against executed change of the retained water "
+         "over a chunk, per scorer and sponge size"),
+    ):
+        rel = _copy_fig(ctrl / name, figs)
+        if rel:
+            doc.img(rel, caption)
+    doc.p("Per start state, goal and controller: `control/control_windows.parquet`; every "
+          "executed chunk: `control/control_samples.parquet`.")
+
+
 def _md_blocks(text: str) -> list[tuple[str, Any]]:
     """Paragraphs and pipe tables of a Markdown text written by one of our commands."""
     blocks: list[tuple[str, Any]] = []
@@ -781,6 +810,7 @@ def build_report(out_dir: str | os.PathLike[str], validation: Path | None = None
     _section_policies(doc, out, figs, paper)
     _section_training(doc, out, figs)
     _section_closed_loop(doc, out)
+    _section_control(doc, out, figs)
     _section_validation(doc, out, validation)
     _section_config(doc, out)
     return doc

@@ -3,7 +3,10 @@
 
 ``rmi control-bench --runs SWEEP_DIR --data DATASET --wm WM_DIR --policy POLICY_DIR --out DIR
 [--states-per-size 4] [--goals-per-state 2] [--setpoints 5] [--k 8] [--receding 8]
-[--scorers wt,ac-gru] [--no-ensemble] [--receding-scorers wt,ensemble] [--goal-kg G ...]
+[--scorers wt,ac-gru] [--no-ensemble] [--receding-scorers wt,ensemble]
+[--refine-scorers arx-32] [--refine-metrics smooth,l2] [--controllers ranked,refined,...]
+[--sizes 8,10]
+[--goal-kg G ...]
 [--split test] [--seed 0] [--threads N]``
 """
 
@@ -22,6 +25,15 @@ def _names(text: str) -> list[str]:
     if not names:
         raise argparse.ArgumentTypeError(f"expected comma-separated model names, got {text!r}")
     return names
+
+
+def _sizes(text: str) -> list[int]:
+    try:
+        return [int(n) for n in _names(text)]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected sizes in cm such as 8,10, got {text!r}"
+        ) from None
 
 
 def _goal(text: str) -> float:
@@ -87,6 +99,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "first scorer)",
     )
     parser.add_argument(
+        "--refine-scorers",
+        type=_names,
+        default=(),
+        metavar="A,B",
+        help="scorers whose gradient refines the ranked chunk toward the goal, and drives the "
+        "model-only controllers (default: the receding scorers)",
+    )
+    parser.add_argument(
+        "--refine-metrics",
+        type=_names,
+        default=("smooth",),
+        metavar="M,N",
+        help="metrics of the refinement step: smooth (least step-to-step change) and/or l2 "
+        "(least change); the first also drives the receding and model-only controllers",
+    )
+    parser.add_argument(
+        "--controllers",
+        type=_names,
+        default=None,
+        metavar="A,B",
+        help="controller families to run: first-sample, ranked, best-of-k, refined, model, "
+        "receding, receding-refined, receding-model (default: all; the setpoint sweep, "
+        "recorded and constant-best always run)",
+    )
+    parser.add_argument(
+        "--sizes",
+        type=_sizes,
+        default=None,
+        metavar="8,10",
+        help="sponge sizes (cm) to draw start states from (default: every size)",
+    )
+    parser.add_argument(
         "--goal-kg",
         type=_goal,
         action="append",
@@ -127,6 +171,10 @@ def run(args: argparse.Namespace) -> int:
         scorers=args.scorers,
         ensemble=not args.no_ensemble,
         receding_scorers=args.receding_scorers,
+        refine_scorers=args.refine_scorers,
+        refine_metrics=args.refine_metrics,
+        controllers=args.controllers,
+        sizes=args.sizes,
         goal_kg=args.goal_kg,
         split=args.split,
         seed=args.seed,

@@ -52,6 +52,19 @@ TABLE_STEM = "table_control"
 FIGURE_FILE = "fig_control.png"
 SCORERS_FIGURE_FILE = "fig_control_scorers.png"
 OBJECTIVES: tuple[str, ...] = ("diffusion", "flow")
+#: Controller families of the benchmark (``controllers``; the setpoint sweep, ``recorded``
+#: and ``constant-best`` always run). ``best-of-k`` executes all K samples of every policy,
+#: which the scorer diagnostics and ``control_samples.parquet``'s policy rows need.
+FAMILIES: tuple[str, ...] = (
+    "first-sample",
+    "ranked",
+    "best-of-k",
+    "refined",
+    "model",
+    "receding",
+    "receding-refined",
+    "receding-model",
+)
 #: Row statuses of a start state that ran no controller.
 STATE_STATUSES = ("duplicate", "replay_failed")
 
@@ -347,6 +360,9 @@ class Bench:
         seed: int,
         ensemble: bool = True,
         receding_scorers: Sequence[str] = (),
+        refine_scorers: Sequence[str] = (),
+        refine_metrics: Sequence[str] = ("smooth",),
+        controllers: Sequence[str] = FAMILIES,
     ) -> None:
         from rmi_learn.policies.ranking import (
             EnsembleScorer,
@@ -366,6 +382,7 @@ class Bench:
         if ensemble and len(fns) >= 2:
             fns[ENSEMBLE] = EnsembleScorer(dict(fns))  # type: ignore[assignment]
         self.scorer_names = list(fns)
+        self.fns = fns
         self.planners = {
             (p, s): Planner(pol.net, pol.objective, fn, self.std, k=k)
             for p, pol in policies.items()
@@ -373,6 +390,9 @@ class Bench:
         }
         self.default_scorer = self.scorer_names[0]
         self.receding_scorers = list(receding_scorers) or [self.default_scorer]
+        self.refine_scorers = list(refine_scorers) or list(self.receding_scorers)
+        self.refine_metrics = list(refine_metrics)
+        self.families = set(controllers)
         self.executions = 0
         #: Rows of ``control_samples.parquet`` produced by the last :meth:`state_rows`.
         self.samples: list[dict[str, Any]] = []
@@ -507,10 +527,10 @@ class Bench:
             samples = first_planner.sample(
                 hist, mask, self.std.goal_vector(g_std, wnow), gen
             )  # (G, K, H, 1)
-            exe = [
-                [self._exec(s.state, samples[gi, j, :, 0].double().numpy()) for j in range(self.k)]
-                for gi in range(n_goals)
-            ]
+            # Samples run on demand, once each: only best-of-K needs all K.
+            run_sample = _Executed(lambda u: self._exec(s.state, u), samples)
+
+            every = "best-of-k" in self.families
             recorded = recorded_u.expand(n_goals, 1, h, len(CONTROL_ACTIONS))
             cand = torch.cat([samples, recorded], dim=1)
             scored = {
@@ -521,63 +541,137 @@ class Bench:
                 [scored[sn][1].double().numpy() for sn in self.scorer_names], axis=-1
             )  # (G, K + 1, scorers)
             for gi, goal in enumerate(goals):
-                for j in range(self.k):
-                    self._sample_row(base, pname, j, samples[gi, j, :, 0].double().numpy(),
-                                     exe[gi][j], pred_kg[gi, j], goal)
-                errs = np.asarray(
-                    [np.inf if e.M_L is None else 1000.0 * abs(e.M_L - goal[2]) for e in exe[gi]]
-                )
-                row(goal, f"first-sample/{pname}", exe[gi][0], objective=pname,
-                    sample_index=0, executions=1)
-                best = int(np.argmin(errs))
-                row(goal, f"best-of-k/{pname}", exe[gi][best], objective=pname,
-                    sample_index=best, executions=self.k)
+                errs = np.full(self.k, np.nan)
+                if every:
+                    for j in range(self.k):
+                        e = run_sample(gi, j)
+                        self._sample_row(base, pname, j, samples[gi, j, :, 0].double().numpy(),
+                                         e, pred_kg[gi, j], goal)
+                        errs[j] = np.inf if e.M_L is None else 1000.0 * abs(e.M_L - goal[2])
+                    best = int(np.argmin(errs))
+                    row(goal, f"best-of-k/{pname}", run_sample(gi, best), objective=pname,
+                        sample_index=best, executions=self.k)
+                if "first-sample" in self.families:
+                    row(goal, f"first-sample/{pname}", run_sample(gi, 0), objective=pname,
+                        sample_index=0, executions=1)
                 for sn, (costs, _water) in scored.items():
                     j = costs["J"][gi]
                     idx = int(torch.argmin(j[: self.k]))
                     pred = costs["J_M"][gi].double().numpy()
-                    finite = np.isfinite(errs)
-                    rank_rec = int(1 + np.sum(j[: self.k].numpy() < float(j[self.k])))
-                    row(
-                        goal,
-                        f"ranked-{sn}/{pname}",
-                        exe[gi][idx],
-                        objective=pname,
-                        scorer=sn,
-                        sample_index=idx,
-                        pred_err_g=float(pred[idx]),
-                        spearman=measures.spearman(pred[: self.k][finite], errs[finite]),
-                        recorded_rank=rank_rec,
-                        pred_err_recorded_g=float(pred[self.k]),
-                        persistence_err_g=1000.0 * abs(water_now - goal[2]),
-                        executions=self.k,
-                    )
-                for sn in self.receding_scorers if self.receding else ():
+                    if "ranked" in self.families:
+                        finite = np.isfinite(errs)
+                        rank_rec = int(1 + np.sum(j[: self.k].numpy() < float(j[self.k])))
+                        row(
+                            goal,
+                            f"ranked-{sn}/{pname}",
+                            run_sample(gi, idx),
+                            objective=pname,
+                            scorer=sn,
+                            sample_index=idx,
+                            pred_err_g=float(pred[idx]),
+                            spearman=(
+                                measures.spearman(pred[: self.k][finite], errs[finite])
+                                if every else None
+                            ),
+                            recorded_rank=rank_rec,
+                            pred_err_recorded_g=float(pred[self.k]),
+                            persistence_err_g=1000.0 * abs(water_now - goal[2]),
+                            executions=self.k if every else 1,
+                        )
+                    if "refined" not in self.families or sn not in self.refine_scorers:
+                        continue
+                    for metric in self.refine_metrics:
+                        u, pred_g = self._refine(s, sn, samples[gi, idx], goal[2], h - 1, metric)
+                        row(goal, f"{self._refined_name(sn, metric)}/{pname}",
+                            self._exec(s.state, u), objective=pname, scorer=sn,
+                            sample_index=idx, pred_err_g=pred_g, executions=1)
+                plain = self.receding_scorers if "receding" in self.families else []
+                refined = (
+                    self.refine_scorers if "receding-refined" in self.families else []
+                )
+                for sn, how in [(x, None) for x in plain] + [
+                    (x, self.refine_metrics[0]) for x in refined
+                ]:
+                    if not self.receding:
+                        break
                     # The same draws for every scorer: they differ only in their choices.
                     rgen = torch.Generator().manual_seed(
                         _seed(self.seed, c.run_id, c.t, pname, "receding", gi)
                     )
-                    e, n_plans = self.receding_run(s, pname, sn, goal[2], rgen)
-                    name = f"receding-{self.receding}" + (
-                        "" if sn == self.default_scorer else f"-{sn}"
-                    )
+                    e, n_plans = self.receding_run(s, pname, sn, goal[2], rgen, refine=how)
+                    if how is not None:
+                        name = f"receding-{self.receding}-refined-{sn}"
+                    else:
+                        name = f"receding-{self.receding}" + (
+                            "" if sn == self.default_scorer else f"-{sn}"
+                        )
                     row(goal, f"{name}/{pname}", e, objective=pname, scorer=sn,
                         executions=n_plans)
+        # Model-based control without a policy: the last applied setpoint held, refined.
+        hold = float(tr.actions[max(c.t - 1, 0), 0])
+        for goal in goals:
+            for sn in self.refine_scorers:
+                metric = self.refine_metrics[0]
+                if "model" in self.families:
+                    start = torch.full((h, 1), hold)
+                    u, pred_g = self._refine(s, sn, start, goal[2], h - 1, metric)
+                    row(goal, f"model-{sn}", self._exec(s.state, u), scorer=sn,
+                        setpoint_N=hold, pred_err_g=pred_g, executions=1)
+                if "receding-model" in self.families and self.receding:
+                    e, n_plans = self.receding_run(s, None, sn, goal[2], None, refine=metric,
+                                                   start=hold)
+                    row(goal, f"receding-{self.receding}-model-{sn}", e, scorer=sn,
+                        setpoint_N=hold, executions=n_plans)
         wall = time.perf_counter() - t0
         for r in rows:
             r["wall_s"] = wall
         return rows
 
+    def _refined_name(self, scorer: str, metric: str) -> str:
+        return f"refined-{scorer}" if metric == self.refine_metrics[0] else (
+            f"refined-{metric}-{scorer}"
+        )
+
+    def _refine(
+        self, s: StartState, scorer: str, u: Any, goal_kg: float, step: int, metric: str,
+        hist: Any = None, mask: Any = None,
+    ) -> tuple[np.ndarray, float]:
+        """The chunk ``u`` (H, 1) N refined by ``scorer`` toward ``goal_kg`` at command
+        ``step`` (:func:`~rmi_learn.control.refine.refine_chunk`), never below the sweep's
+        lowest setpoint unless it starts there; returns the setpoints (H,) and the scorer's
+        forecast error after refinement (g)."""
+        import torch
+
+        from rmi_learn.control.refine import refine_chunk
+
+        floor = SETPOINT_LOW_FRACTION * float(s.track.config["hold_force"])
+        u = torch.as_tensor(u, dtype=torch.float32)[None]
+        g = torch.as_tensor([goal_kg], dtype=torch.float32)
+        r = refine_chunk(
+            self.fns[scorer], self.std, s.hist if hist is None else hist,
+            s.hist_mask if mask is None else mask, u, g, step,
+            lower=torch.clamp(u, max=floor), metric=metric,
+        )
+        return r.u[0, :, 0].double().numpy(), 1000.0 * abs(float(r.pred_after_kg[0]) - goal_kg)
+
     def receding_run(
-        self, s: StartState, pname: str, scorer: str, goal_kg: float, gen: Any
+        self, s: StartState, pname: str | None, scorer: str, goal_kg: float, gen: Any,
+        refine: str | None = None, start: float | None = None,
     ) -> tuple[Execution, int]:
         """Re-plan every ``receding`` control steps from the observed history: K policy
         samples toward the goal, ranked by ``scorer`` on the predicted water at the goal
-        time, of which the first ``receding`` setpoints are executed."""
+        time, of which the first ``receding`` setpoints are executed. ``refine``: a metric
+        of :func:`~rmi_learn.control.refine.refine_chunk`, with which the ranked chunk is
+        refined by ``scorer`` toward the goal at the goal time before it is executed.
+        ``pname`` None: no policy; the plan starts as ``start`` N held and each re-plan
+        refines the rest of the previous plan (its last setpoint held to the full chunk)."""
         import torch
 
-        planner = self.planners[(pname, scorer)]
         h, n = self.h, self.receding
+        if pname is None and (refine is None or start is None):
+            raise ValueError("a receding run without a policy needs refine and start")
+        planner = self.planners[(pname, scorer)] if pname is not None else None
+        plan = torch.full((h, 1), float(start or 0.0))
         hist = s.hist.clone()
         mask = s.hist_mask.clone()
         wnow = s.water_now_std.clone()
@@ -589,12 +683,17 @@ class Bench:
         e = Execution()
         while done < h:
             left = h - done
-            samples = planner.sample(hist, mask, self.std.goal_vector(g_std, wnow), gen)
-            costs, _ = planner.score(hist, mask, samples, g_kg, step=left - 1)
-            j = int(torch.argmin(costs["J"][0]))
+            if planner is not None:
+                samples = planner.sample(hist, mask, self.std.goal_vector(g_std, wnow), gen)
+                costs, _ = planner.score(hist, mask, samples, g_kg, step=left - 1)
+                plan = samples[0, int(torch.argmin(costs["J"][0]))]
+            if refine is not None:
+                u, _ = self._refine(s, scorer, plan, goal_kg, left - 1, refine, hist, mask)
+                plan = torch.as_tensor(u, dtype=torch.float32)[:, None]
             step = min(n, left)
-            e = run_forces(self.sim, samples[0, j, :step, 0].double().numpy(), self.substeps,
+            e = run_forces(self.sim, plan[:step, 0].double().numpy(), self.substeps,
                            keep_records=True)
+            plan = torch.cat([plan[step:], plan[-1:].expand(step, -1)])
             plans += 1
             if e.status != "ok":
                 return e, plans
@@ -610,6 +709,20 @@ class Bench:
         e.peak_force_N = float(peak)
         e.records = []
         return e, plans
+
+
+class _Executed:
+    """Executions of policy samples (G, K, H, 1) N on demand, each chunk at most once:
+    ``run(gi, j)``."""
+
+    def __init__(self, execute: Callable[[np.ndarray], Execution], samples: Any) -> None:
+        self.execute, self.samples = execute, samples
+        self.cache: dict[tuple[int, int], Execution] = {}
+
+    def __call__(self, gi: int, j: int) -> Execution:
+        if (gi, j) not in self.cache:
+            self.cache[gi, j] = self.execute(self.samples[gi, j, :, 0].double().numpy())
+        return self.cache[gi, j]
 
 
 def simulator_scorer(sim: Any, state: bytes, substeps: int, std: Any) -> Any:
@@ -733,6 +846,10 @@ def run_control_bench(
     scorers: Sequence[str] | None = None,
     ensemble: bool = True,
     receding_scorers: Sequence[str] = (),
+    refine_scorers: Sequence[str] = (),
+    refine_metrics: Sequence[str] = ("smooth",),
+    controllers: Sequence[str] | None = None,
+    sizes: Sequence[int] | None = None,
     goal_kg: Sequence[float] = (),
     split: str = "test",
     seed: int = 0,
@@ -751,7 +868,14 @@ def run_control_bench(
     ``ensemble``: with two or more, also rank by their ensemble (``ranked-ensemble``: mean
     forecast, members' spread as a penalty). ``receding_scorers``: the scorers of the
     receding-horizon controller (default the first scorer, W_T when present; others are
-    named ``receding-<n>-<scorer>``).
+    named ``receding-<n>-<scorer>``). ``refine_scorers``: the scorers whose gradient
+    refines the ranked chunk (``refined-<scorer>/<policy>``, one per metric of
+    ``refine_metrics``, see :mod:`rmi_learn.control.refine`), the re-planned chunks
+    (``receding-<n>-refined-<scorer>/<policy>``) and a held setpoint without a policy
+    (``model-<scorer>``, ``receding-<n>-model-<scorer>``); default the receding scorers.
+    ``controllers``: the families of :data:`FAMILIES` to run (default all). ``sizes``: the
+    sponge sizes (cm) to draw start states from (default every size of the split; each
+    size's states are drawn independently, so a run can be extended to other sizes).
     ``goal_kg``: extra goals (kg) for every state. States already in the checkpoint are not
     run again; a larger ``states_per_size`` extends it. Returns the summary written to
     ``table_control.json``. Raises :class:`ControlBenchError` for unusable inputs, before
@@ -794,16 +918,39 @@ def run_control_bench(
         raise ControlBenchError(f"receding must be at most the chunk length {h}, got {receding}")
     scs, skipped = load_scorers(wm_p, ds, h, scorers)
     rank_names = list(scs) + ([ENSEMBLE] if ensemble and len(scs) >= 2 else [])
-    bad = [n for n in receding_scorers if n not in rank_names]
-    if bad:
+    for flag, names in (("--receding-scorers", receding_scorers),
+                        ("--refine-scorers", refine_scorers)):
+        bad = [n for n in names if n not in rank_names]
+        if bad:
+            raise ControlBenchError(f"{flag} {bad}: not among the scorers {rank_names}")
+    from rmi_learn.control.refine import METRICS
+
+    bad = [m for m in refine_metrics if m not in METRICS] or (
+        ["(none)"] if not refine_metrics else []
+    )
+    if bad or len(set(refine_metrics)) != len(refine_metrics):
         raise ControlBenchError(
-            f"--receding-scorers {bad}: not among the scorers {rank_names}"
+            f"--refine-metrics {list(refine_metrics)}: give distinct metrics of {list(METRICS)}"
+        )
+    families = list(FAMILIES) if controllers is None else list(controllers)
+    bad = [f for f in families if f not in FAMILIES]
+    if bad or not families:
+        raise ControlBenchError(
+            f"--controllers {bad or '(none)'}: choose among {list(FAMILIES)}"
         )
     split_used = split
     if not len(ds.split_runs(split)):
         split_used = "val"
         say(f"control-bench: the {split} split is empty; start states from the val split")
     cands = candidates(ds, split_used, hist_len, h)
+    if sizes is not None:
+        missing = sorted(set(sizes) - set(cands))
+        if missing or not sizes:
+            raise ControlBenchError(
+                f"--sizes {list(sizes)}: the {split_used} split has start states for sizes "
+                f"{sorted(cands)} cm only"
+            )
+        cands = {size: cs for size, cs in cands.items() if size in sizes}
     if not cands:
         raise ControlBenchError(
             f"no window of the {split_used} split has its anchor in {ACTING_PHASES}"
@@ -861,6 +1008,9 @@ def run_control_bench(
         "scorers": sorted(scs),
         "ensemble": bool(ensemble and len(scs) >= 2),
         "receding_scorers": list(receding_scorers) or [rank_names[0]],
+        "refine_scorers": list(refine_scorers) or list(receding_scorers) or [rank_names[0]],
+        "refine_metrics": list(refine_metrics),
+        "controllers": [f for f in FAMILIES if f in families],
         "horizon": h,
         "history": hist_len,
     }
@@ -916,7 +1066,8 @@ def run_control_bench(
                         sim, substeps, ds, pols, scs, k=k, horizon=h, n_setpoints=setpoints,
                         goals_per_state=goals_per_state, given_goals=goal_kg,
                         receding=receding, seed=seed, ensemble=ensemble,
-                        receding_scorers=receding_scorers,
+                        receding_scorers=receding_scorers, refine_scorers=refine_scorers,
+                        refine_metrics=refine_metrics, controllers=families,
                     )
                     auto: bytes | None = None
                     for c in sorted((c for c in batch if c.run_id == rid), key=lambda c: c.t):

@@ -249,7 +249,10 @@ def _count(xs: Sequence[str]) -> dict[str, int]:
     return out
 
 
-_ORDER = ("recorded", "constant-best", "first-sample", "ranked-", "best-of-k", "receding-")
+_ORDER = (
+    "recorded", "constant-best", "first-sample", "ranked-", "refined-", "best-of-k", "model-",
+    "receding-",
+)
 
 
 def _ordered(names: set[str]) -> list[str]:

@@ -207,6 +207,9 @@ class ControlOptions(StageOptions):
     receding: int | None = _count(0)
     scorers: str | None = _text()
     receding_scorers: str | None = _text()
+    refine_scorers: str | None = _text()
+    refine_metrics: str | None = _text()
+    controllers: str | None = _text()
     split: str | None = _text()
     seed: int | None = _count(0)
 

@@ -273,7 +273,8 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
             + t
             + ["--no-progress"]
         )
-        for key in ("scorers", "receding_scorers"):
+        for key in ("scorers", "receding_scorers", "refine_scorers", "refine_metrics",
+                    "controllers"):
             if key in opts:
                 opts[key] = [n.strip() for n in opts[key].split(",") if n.strip()]
 

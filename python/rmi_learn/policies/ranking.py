@@ -336,11 +336,12 @@ def score_chunks(
 def world_model_scorer(model: torch.nn.Module) -> Scorer:
     """Adapt a :class:`rmi_learn.world_models.WorldModel` (e.g. the Transformer W_T) to
     :data:`Scorer`: free rollout in eval mode, standardised z, contact and friction
-    probabilities. The scorer carries the model's ``shares_history`` flag: when set, it takes
-    B histories with B * M chunks and encodes each history once."""
+    probabilities; differentiable in the actions where the caller enables gradients. The
+    scorer carries the model's ``shares_history`` flag: when set, it takes B histories with
+    B * M chunks and encodes each history once."""
 
     def score(hist: Tensor, hist_mask: Tensor, actions: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        out = model.predict(hist, hist_mask, actions)  # type: ignore[operator]
+        out = model.forecast(hist, hist_mask, actions)  # type: ignore[operator]
         return out["z"], out["p_contact"], out["p_friction"]
 
     score.shares_history = bool(getattr(model, "shares_history", False))  # type: ignore[attr-defined]

@@ -160,6 +160,13 @@ class WorldModel(nn.Module):
     ) -> dict[str, torch.Tensor]:
         """Free rollout in eval mode: ``z`` (N, H, 18) standardised, ``p_contact`` (N, H),
         ``p_friction`` (N, H, 4) probabilities. Inputs are standardised as in the dataset."""
+        return self.forecast(hist, hist_mask, actions)
+
+    def forecast(
+        self, hist: torch.Tensor, hist_mask: torch.Tensor, actions: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
+        """:meth:`predict` under the caller's gradient mode: differentiable in ``actions``
+        when gradients are enabled (model-based refinement of a chunk)."""
         was = self.training
         self.eval()
         try:
