@@ -20,8 +20,8 @@ each with the Transformer W_T (width 256, 8 heads, 3 + 4 layers), the AC-GRU-WM 
 rollout where the extension has it) and the 32-step Linear-ARX (``arx``; ``wm/arx-32`` of a
 pipeline output) as scorer. Prints p50/p95 in ms and decisions
 per second, and with ``--breakdown`` where one decision's time goes (condition encoding,
-one UNet pass over the K samples in eager torch and on the fast path, with its FLOPs, and
-each scorer alone).
+one UNet pass over the K samples in eager torch and on the fast path, with its FLOPs,
+each scorer alone, and the Linear-ARX's refinement of the chosen chunk).
 
     .venv/bin/python benches/bench_planning.py [--threads 2] [--reps 30] [--breakdown] [--run OUT]
 """
@@ -78,6 +78,10 @@ def main() -> None:
                    help="fast-path step counts; 'ref': the paper's 16 / 20")  # fmt: skip
     p.add_argument("--scorers", default="gru,wt,arx", help="comma list of gru, wt, arx")
     p.add_argument("--no-reference", action="store_true", help="skip the reference planner")
+    p.add_argument("--refine", action="store_true",
+                   help="also time each fast/student decision with the Linear-ARX scorer "
+                   "followed by refinement of the chosen chunk (RealtimePlanner.act, "
+                   "refine='smooth', 4 iterations)")  # fmt: skip
     p.add_argument("--breakdown", action="store_true", help="time the parts of a decision")
     p.add_argument("--json", action="store_true", help="print one JSON line per setting")
     p.add_argument("--run", default=None, help="a pipeline output with trained policies and models")
@@ -134,6 +138,13 @@ def main() -> None:
                 fast = RealtimePlanner(snet, make[obj](), scorer, std, k=args.k, steps=n)
                 planners.append(({"path": "student", "objective": obj, "steps": n,
                                   "scorer": sc_name}, fast))  # fmt: skip
+    if args.refine and "arx" in scorers:
+        for rec in [r for r, _ in planners if r["scorer"] == "arx" and r["path"] != "ref"]:
+            obj = rec["objective"]
+            net = students[obj][0] if rec["path"] == "student" else nets[obj]
+            act = RealtimePlanner(net, make[obj](), scorers["arx"], std, k=args.k,
+                                  steps=rec["steps"], refine="smooth")  # fmt: skip
+            planners.append(({**rec, "scorer": "arx+refine"}, _Act(act, std)))
 
     header = {
         "cpu": cpu_model(),
@@ -168,6 +179,18 @@ def main() -> None:
 
     if args.breakdown:
         breakdown(nets[objectives[0]], wms, hist, mask, args, FastSampler, FlowObjective)
+
+
+class _Act:
+    """A decision through ``RealtimePlanner.act`` (selection, then refinement), called like
+    ``Planner.plan`` by the timing loop."""
+
+    def __init__(self, planner: Any, std: Any) -> None:
+        self.planner, self.std = planner, std
+
+    def plan(self, hist: Any, mask: Any, goal: Any, water: Any, original: Any, gen: Any) -> Any:
+        goal_kg = float(self.std.water_to_kg(goal[:1])[0])
+        return self.planner.act(hist[0], mask[0], goal_kg, gen)
 
 
 def trained(run: str, objectives: list[str]) -> tuple[Any, ...]:
@@ -235,6 +258,22 @@ def breakdown(net: Any, wms: dict[str, Any], hist: Any, mask: Any, args: Any,
         if "arx" in wms:
             parts[f"Linear-ARX (32) scoring {k} x 32"] = median_ms(
                 lambda: wms["arx"].predict(hist.expand(k, -1, -1), mask.expand(k, -1, -1), u),
+                reps)  # fmt: skip
+    if "arx" in wms:
+        # Refinement of the chosen chunk by the scorer's gradient (control/refine.py): outside
+        # inference mode, since it differentiates through the model.
+        from rmi_learn.control.refine import refine_chunk
+        from rmi_learn.policies.ranking import Standardiser, world_model_scorer
+
+        std = Standardiser(torch.zeros(18), torch.full((18,), 0.1), torch.tensor([150.0]),
+                           torch.tensor([80.0]))  # fmt: skip
+        scorer = world_model_scorer(wms["arx"])
+        chunk = torch.full((1, 32, 1), 150.0)
+        goal = refine_chunk(scorer, std, hist, mask, chunk, torch.zeros(1), iterations=0)
+        target = goal.pred_before_kg + 0.003
+        for n in (1, 4):
+            parts[f"Linear-ARX refinement, {n} iteration(s)"] = median_ms(
+                lambda n=n: refine_chunk(scorer, std, hist, mask, chunk, target, iterations=n),
                 reps)  # fmt: skip
     for name, ms in parts.items():
         print(f"{name:40s} {ms:7.2f} ms")

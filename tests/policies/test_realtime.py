@@ -127,6 +127,32 @@ def test_realtime_planner_selects_what_the_planner_selects(name: str, scorer: st
     assert 0.0 <= float(chunk[:, 0].min()) and float(chunk[:, 0].max()) <= 400.0
 
 
+def test_act_refines_the_selected_chunk_toward_the_goal() -> None:
+    from rmi_learn.control.refine import refine_chunk
+    from rmi_learn.world_models.arx import LinearARX
+
+    torch.manual_seed(2)
+    arx = LinearARX(history=16, horizon=32)
+    arx.W.normal_(0.0, 1e-3)
+    score = world_model_scorer(arx)
+    net = _net(1)
+    plain = RealtimePlanner(net, FlowObjective(), score, STD, k=8)
+    refined = RealtimePlanner(net, FlowObjective(), score, STD, k=8, refine="smooth")
+    hist, mask, _ = _inputs(1)
+    chunk = plain.act(hist[0], mask[0], 0.5, torch.Generator().manual_seed(9))
+    pred = refine_chunk(score, STD, hist, mask, chunk[None], torch.zeros(1), iterations=0)
+    goal = float(pred.pred_before_kg[0]) + 0.002
+    chunk = plain.act(hist[0], mask[0], goal, torch.Generator().manual_seed(9))
+    moved = refined.act(hist[0], mask[0], goal, torch.Generator().manual_seed(9))
+    direct = refine_chunk(score, STD, hist, mask, chunk[None], torch.tensor([goal]),
+                          lower=torch.clamp(chunk[None], max=0.0))  # fmt: skip
+    assert moved.shape == (32, 1) and not torch.allclose(moved, chunk)
+    assert torch.allclose(moved, direct.u[0], atol=1e-5)
+    assert float(direct.pred_after_kg[0]) == pytest.approx(goal, abs=1e-5)
+    with pytest.raises(InputError, match="refine must be one of"):
+        RealtimePlanner(net, FlowObjective(), score, STD, refine="cubic")
+
+
 # ------------------------------------------------------------------ run directories
 
 

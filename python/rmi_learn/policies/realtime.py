@@ -266,7 +266,11 @@ class RealtimePlanner(Planner):
 
     ``steps`` overrides the objective's sampler step count (a distilled student's run
     records its own); ``threads`` sets ``torch.set_num_threads`` (process-wide) when given.
-    :meth:`act` is the controller's call.
+    ``refine``: a metric of :func:`rmi_learn.control.refine.refine_chunk` (``smooth`` or
+    ``l2``) with which :meth:`act` moves the selected chunk toward the goal by the scorer's
+    gradient (``refine_iterations`` Gauss-Newton steps, setpoints kept within
+    [min(u, ``refine_floor``), ``force_limit``] N); None selects only. :meth:`act` is the
+    controller's call.
     """
 
     def __init__(
@@ -280,11 +284,20 @@ class RealtimePlanner(Planner):
         force_limit: float = FORCE_LIMIT_N,
         steps: int | None = None,
         threads: int | None = None,
+        refine: str | None = None,
+        refine_iterations: int = 4,
+        refine_floor: float = 0.0,
     ) -> None:
+        from rmi_learn.control.refine import METRICS
+
+        if refine is not None and refine not in METRICS:
+            raise InputError(f"refine must be one of {METRICS} or None, got {refine!r}")
         if threads is not None:
             torch.set_num_threads(threads)
         super().__init__(policy, objective, scorer, standardiser, k, weights, force_limit)
         self.sampler = FastSampler(policy, objective, steps)
+        self.refine, self.refine_iterations = refine, refine_iterations
+        self.refine_floor = refine_floor
 
     @property
     def steps(self) -> int:
@@ -314,7 +327,8 @@ class RealtimePlanner(Planner):
         goal_kg: float | Tensor,
         generator: torch.Generator | None = None,
     ) -> Tensor:
-        """One decision for one window: the selected chunk (H, 2) in N and m/s.
+        """One decision for one window: the selected chunk (H, 1) of force setpoints in N,
+        refined toward the goal when the planner was made with ``refine``.
 
         ``hist``/``hist_mask`` (L, 23) are the latest L observation rows and their mask,
         standardised as in the dataset windows (the current M_L is read from the last row);
@@ -326,7 +340,20 @@ class RealtimePlanner(Planner):
         goal = torch.as_tensor(goal_kg, dtype=torch.float32).reshape(1)
         goal_std = (goal - self.std.z_mean[WATER]) / self.std.z_std[WATER]
         res = self.plan(h, m, goal_std, last_z(h)[:, WATER], None, generator)
-        return res.selected[0]
+        chunk = res.selected[0]
+        if self.refine is None:
+            return chunk
+        from rmi_learn.control.refine import refine_chunk
+
+        # The plan's tensors are inference tensors; gradients need ordinary copies.
+        with torch.inference_mode(False):
+            u = chunk.clone()[None]
+            r = refine_chunk(
+                self.scorer, self.std, h.clone(), m.clone(), u, goal.clone(),
+                lower=torch.clamp(u, max=self.refine_floor), upper=self.force_limit,
+                iterations=self.refine_iterations, metric=self.refine,
+            )
+        return r.u[0]
 
 
 def load_realtime_planner(
@@ -339,9 +366,12 @@ def load_realtime_planner(
     threads: int | None = None,
     weights: str = "model.ema",
     force_limit: float = FORCE_LIMIT_N,
+    refine: str | None = None,
+    refine_floor: float = 0.0,
 ) -> RealtimePlanner:
     """A :class:`RealtimePlanner` from a policy run (trained or distilled) and a world-model
-    run (an AC-GRU-WM run for the native rollout, or W_T).
+    run (the 32-step Linear-ARX, an AC-GRU-WM run for the native rollout, or W_T);
+    ``refine`` and ``refine_floor`` as in :class:`RealtimePlanner`.
 
     The standardisation statistics come from the world model's run (``extra.stats``) or
     from ``dataset``; when both exist they must agree. Raises
@@ -395,6 +425,8 @@ def load_realtime_planner(
         force_limit=force_limit,
         steps=steps,
         threads=threads,
+        refine=refine,
+        refine_floor=refine_floor,
     )
 
 
