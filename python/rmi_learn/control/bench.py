@@ -358,9 +358,9 @@ class Bench:
         given_goals: Sequence[float],
         receding: int,
         seed: int,
+        receding_scorers: Sequence[str],
+        refine_scorers: Sequence[str],
         ensemble: bool = True,
-        receding_scorers: Sequence[str] = (),
-        refine_scorers: Sequence[str] = (),
         refine_metrics: Sequence[str] = ("smooth",),
         controllers: Sequence[str] = FAMILIES,
     ) -> None:
@@ -389,8 +389,8 @@ class Bench:
             for s, fn in fns.items()
         }
         self.default_scorer = self.scorer_names[0]
-        self.receding_scorers = list(receding_scorers) or [self.default_scorer]
-        self.refine_scorers = list(refine_scorers) or list(self.receding_scorers)
+        self.receding_scorers = list(receding_scorers)
+        self.refine_scorers = list(refine_scorers)
         self.refine_metrics = list(refine_metrics)
         self.families = set(controllers)
         self.executions = 0
@@ -589,11 +589,8 @@ class Bench:
                 refined = (
                     self.refine_scorers if "receding-refined" in self.families else []
                 )
-                for sn, how in [(x, None) for x in plain] + [
-                    (x, self.refine_metrics[0]) for x in refined
-                ]:
-                    if not self.receding:
-                        break
+                runs = [(x, None) for x in plain] + [(x, self.refine_metrics[0]) for x in refined]
+                for sn, how in runs if self.receding else ():
                     # The same draws for every scorer: they differ only in their choices.
                     rgen = torch.Generator().manual_seed(
                         _seed(self.seed, c.run_id, c.t, pname, "receding", gi)
@@ -713,7 +710,7 @@ class Bench:
 
 class _Executed:
     """Executions of policy samples (G, K, H, 1) N on demand, each chunk at most once:
-    ``run(gi, j)``."""
+    calling it with (goal index, sample index) returns that sample's execution."""
 
     def __init__(self, execute: Callable[[np.ndarray], Execution], samples: Any) -> None:
         self.execute, self.samples = execute, samples
@@ -923,6 +920,9 @@ def run_control_bench(
         bad = [n for n in names if n not in rank_names]
         if bad:
             raise ControlBenchError(f"{flag} {bad}: not among the scorers {rank_names}")
+    # Defaults resolved once: the first scorer re-plans, the re-planning scorers refine.
+    receding_scorers = list(receding_scorers) or [rank_names[0]]
+    refine_scorers = list(refine_scorers) or receding_scorers
     from rmi_learn.control.refine import METRICS
 
     bad = [m for m in refine_metrics if m not in METRICS] or (
@@ -1007,8 +1007,8 @@ def run_control_bench(
         "seed": seed,
         "scorers": sorted(scs),
         "ensemble": bool(ensemble and len(scs) >= 2),
-        "receding_scorers": list(receding_scorers) or [rank_names[0]],
-        "refine_scorers": list(refine_scorers) or list(receding_scorers) or [rank_names[0]],
+        "receding_scorers": receding_scorers,
+        "refine_scorers": refine_scorers,
         "refine_metrics": list(refine_metrics),
         "controllers": [f for f in FAMILIES if f in families],
         "horizon": h,

@@ -58,13 +58,20 @@ def _forecast(scorer, std, hist: Tensor, hist_mask: Tensor, u: Tensor, step: int
     return std.water_to_kg(z[:, step, 0])
 
 
-def _direction(j: Tensor, free: Tensor, metric: str) -> Tensor:
-    """``M^-1 J`` over the free setpoints (zero on the frozen ones): (N, H, 1)."""
+def _metric(h: int, metric: str) -> Tensor | None:
+    """The metric matrix M (H, H) in float64; None for ``l2`` (M = I)."""
     if metric == "l2":
+        return None
+    diff = torch.eye(h, dtype=torch.float64) - torch.diag(
+        torch.ones(h - 1, dtype=torch.float64), -1
+    )
+    return diff.T @ diff
+
+
+def _direction(j: Tensor, free: Tensor, m: Tensor | None) -> Tensor:
+    """``M^-1 J`` over the free setpoints (zero on the frozen ones): (N, H, 1)."""
+    if m is None:
         return j
-    n, h, _ = j.shape
-    diff = torch.eye(h, dtype=j.dtype) - torch.diag(torch.ones(h - 1, dtype=j.dtype), -1)
-    m = diff.T @ diff
     f = free[..., 0].to(j.dtype)  # (N, H)
     # Frozen setpoints: identity rows and columns, so the system stays regular and their
     # component of the solution is zero.
@@ -108,6 +115,7 @@ def refine_chunk(
     goal = goal_kg.to(u.dtype).reshape(n)
     with torch.no_grad():
         before = _forecast(scorer, std, hist, hist_mask, u0, at)
+    m = _metric(h, metric)
     for _ in range(iterations):
         with torch.enable_grad():
             x = u.clone().requires_grad_(True)
@@ -117,7 +125,7 @@ def refine_chunk(
         outward = grad * gap  # the sign of each setpoint's move
         free = ~(((x.detach() <= lo) & (outward < 0)) | ((x.detach() >= upper) & (outward > 0)))
         j = (grad * free).double()
-        d = _direction(j, free, metric)
+        d = _direction(j, free, m)
         jd = (j * d).sum(dim=(1, 2), keepdim=True)
         step_u = (gap.double() * d / (jd + _EPS)).to(u.dtype)
         u = torch.minimum(torch.maximum(u + step_u, lo), torch.full_like(u, upper))
