@@ -138,10 +138,12 @@ def test_recorded_command_lines(tmp_path: Path) -> None:
     assert cl.argv[-4:] == ["--max-windows", "1", "--threads", "3"]
     assert [c.torch for s in ("world-models", "policies", "rank") for c in stages[s].calls()] == [
         True
-    ] * 9
+    ] * 10
     main_wm = {c.argv[c.argv.index("--out") + 1]: c.argv for c in stages["world-models"].calls()}
     arx32 = main_wm[str(tmp_path / "wm" / "arx-32")]
     assert arx32[:5] == ["train-wm", "--model", "arx", "--model-arg", "horizon=32"]
+    causal = main_wm[str(tmp_path / "wm" / "arx-32c")]
+    assert causal[:7] == [*arx32[:5], "--model-arg", "causal=true"]
 
 
 def test_a_grid_preset_without_a_pipeline_preset_is_named_not_read_as_a_file(
@@ -209,6 +211,7 @@ def test_training_calls_resume_through_the_library(
     run_pipeline(load_preset("tiny"), tmp_path, only=["world-models"], log=lambda s: None)
     assert sorted(seen) == sorted({**pipeline.MAIN_MODELS, **pipeline.SCORER_MODELS})
     assert seen["arx-32"]["model"] == "arx" and seen["arx-32"]["model_args"] == {"horizon": 32}
+    assert seen["arx-32c"]["model_args"] == {"horizon": 32, "causal": True}
     assert seen["ac-gru"]["resume"] and not seen["transformer"]["resume"]
     assert seen["arx"] == {
         "model": "arx",

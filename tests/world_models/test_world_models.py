@@ -408,41 +408,84 @@ def test_shuffled_pairing_keeps_marginal_and_changes_run() -> None:
     assert not torch.equal(b["actions"], WS().a)
 
 
+class _LinearWindows:
+    """``n`` windows (history 4, horizon 5) whose residuals are ``x @ w_true`` in the
+    Linear-ARX's own regressors; ``causal`` zeroes the weights of setpoints after each step."""
+
+    def __init__(self, n: int = 400, causal: bool = False, seed: int = 0) -> None:
+        g = torch.Generator().manual_seed(seed)
+        self.n = n
+        self.hist = torch.randn(n, 4, 23, generator=g)
+        self.mask = torch.ones(n, 4, 23)
+        base = torch.randn(n, 1, N_U, generator=g)
+        # Correlated setpoints, as in logged chunks: a later setpoint says something about
+        # the earlier ones, so a lookahead fit can lean on it.
+        self.actions = base + 0.3 * torch.randn(n, 5, N_U, generator=g)
+        x = LinearARX(history=4, horizon=5).features(self.hist, self.mask, self.actions)
+        w_true = (torch.randn(x.shape[1], 5, 18, generator=g) * 0.1)
+        if causal:
+            n_hist = x.shape[1] - 5 * N_U
+            for k in range(5):
+                w_true[n_hist + (k + 1) * N_U :, k] = 0.0
+        res = (x @ w_true.reshape(x.shape[1], -1)).view(n, 5, 18)
+        self.target = self.hist[:, -1, list(CONTINUOUS_INDEX)].unsqueeze(1) + res
+        self.tmask = torch.ones(n, 5, 18)
+        self.tmask[:50, 2, 3] = 0.0  # incomplete windows are not used for fitting
+        self.target[:50, 2, 3] = 1e3
+
+    def __len__(self) -> int:
+        return self.n
+
+    def batch(self, idx: Any) -> dict[str, torch.Tensor]:
+        i = torch.as_tensor(np.asarray(idx))
+        return {
+            "hist": self.hist[i],
+            "hist_mask": self.mask[i],
+            "actions": self.actions[i],
+            "target": self.target[i],
+            "target_mask": self.tmask[i],
+            "target_c": torch.ones(len(i), 5),
+            "target_r": torch.ones(len(i), 5).long(),
+        }
+
+
 def test_arx_recovers_a_linear_system_from_complete_windows() -> None:
-    torch.manual_seed(0)
+    data = _LinearWindows()
+    n, hist, mask, actions, target = data.n, data.hist, data.mask, data.actions, data.target
     arx = LinearARX(history=4, horizon=5, ridge=1e-6)
-    n = 400
-    hist = torch.randn(n, 4, 23)
-    mask = torch.ones(n, 4, 23)
-    actions = torch.randn(n, 5, N_U)
-    x = arx.features(hist, mask, actions)
-    w_true = torch.randn(x.shape[1], 5 * 18) * 0.1
-    res = (x @ w_true).view(n, 5, 18)
-    target = hist[:, -1, list(CONTINUOUS_INDEX)].unsqueeze(1) + res
-    tmask = torch.ones(n, 5, 18)
-    tmask[:50, 2, 3] = 0.0  # incomplete windows are not used for fitting
-    target[:50, 2, 3] = 1e3
-
-    class Data:
-        def __len__(self) -> int:
-            return n
-
-        def batch(self, idx: Any) -> dict[str, torch.Tensor]:
-            i = torch.as_tensor(np.asarray(idx))
-            return {
-                "hist": hist[i],
-                "hist_mask": mask[i],
-                "actions": actions[i],
-                "target": target[i],
-                "target_mask": tmask[i],
-                "target_c": torch.ones(len(i), 5),
-                "target_r": torch.ones(len(i), 5).long(),
-            }
-
-    assert arx.fit(Data(), batch_size=64) == n - 50
+    assert arx.fit(data, batch_size=64) == n - 50
     out = arx(hist[50:], mask[50:], actions[50:])
     assert torch.allclose(out["z"], target[50:], atol=1e-3)
     assert (out["friction_logit"].argmax(-1) == 1).all()
+
+
+def test_causal_arx_forecast_ignores_later_setpoints_and_recovers_a_causal_system() -> None:
+    data = _LinearWindows(causal=True)
+    arx = LinearARX(history=4, horizon=5, ridge=1e-6, causal=True)
+    arx.fit(data, batch_size=64)
+    h, m, a = data.hist[50:], data.mask[50:], data.actions[50:]
+    out = arx(h, m, a)
+    assert torch.allclose(out["z"], data.target[50:], atol=1e-3)
+    for k in range(4):
+        later = a.clone()
+        later[:, k + 1 :] += 100.0
+        assert torch.equal(arx(h, m, later)["z"][:, : k + 1], out["z"][:, : k + 1])
+    # On a system whose steps do depend on later setpoints, the causal fit cannot follow the
+    # steps before the last, and its terminal step is the lookahead fit's.
+    other = _LinearWindows(causal=False)
+    look = LinearARX(history=4, horizon=5, ridge=1e-6)
+    look.fit(other, batch_size=64)
+    arx.fit(other, batch_size=64)
+    zl, zc = look(h, m, a)["z"], arx(h, m, a)["z"]
+    assert torch.allclose(zl[:, -1], zc[:, -1], atol=1e-4)
+    assert (zl[:, :-1] - zc[:, :-1]).abs().max() > 0.1
+
+
+def test_causal_arx_round_trips_through_its_config(tmp_path: Path) -> None:
+    arx = LinearARX(history=4, horizon=5, causal=True)
+    assert arx.config()["causal"] is True
+    assert build(arx.config()).causal is True
+    assert build(LinearARX(history=4, horizon=5).config()).causal is False
 
 
 # ----------------------------------------------------------------------------- metrics

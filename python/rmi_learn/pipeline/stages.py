@@ -44,14 +44,16 @@ STAGES_SUBDIR = "stages"
 
 @dataclass(frozen=True)
 class ModelRun:
-    """One world model a stage trains: the model, the ablation settings of its run, and the
+    """One world model a stage trains: the model, the ablation settings of its run, the
     fixed horizon of a lookahead model trained on windows of that length (None: its
-    default)."""
+    default), and for Linear-ARX whether each step is fitted on the setpoints up to it only
+    (``causal``)."""
 
     model: str
     shuffle_actions: bool = False
     state_groups: str = "ALL"
     horizon: int | None = None
+    causal: bool = False
 
     def flags(self) -> list[str]:
         """The ``rmi train-wm`` options of this run."""
@@ -59,11 +61,14 @@ class ModelRun:
         out += ["--shuffle-actions"] if self.shuffle_actions else []
         out += ["--state-groups", self.state_groups] if self.state_groups != "ALL" else []
         out += ["--model-arg", f"horizon={self.horizon}"] if self.horizon is not None else []
+        out += ["--model-arg", "causal=true"] if self.causal else []
         return out
 
     def model_args(self) -> dict[str, Any] | None:
         """Constructor overrides of this run."""
-        return {"horizon": self.horizon} if self.horizon is not None else None
+        args: dict[str, Any] = {"horizon": self.horizon} if self.horizon is not None else {}
+        args.update({"causal": True} if self.causal else {})
+        return args or None
 
 
 #: The world models of Tables II and the lookahead diagnostic, by run directory name.
@@ -72,8 +77,13 @@ MAIN_MODELS: dict[str, ModelRun] = {
 }
 #: Scorers of the policies' 32-step chunks for ranking (``rmi control-bench``): Linear-ARX
 #: fitted on 32-step windows, whose forecasts order the executed outcomes of policy samples
-#: best among the trained models (docs/control.md).
-SCORER_MODELS: dict[str, ModelRun] = {"arx-32": ModelRun("arx", horizon=32)}
+#: best among the trained models, and its causal fit, whose forecasts inside the chunk do
+#: not lean on later setpoints, for re-planning toward a goal time inside the chunk
+#: (docs/control.md).
+SCORER_MODELS: dict[str, ModelRun] = {
+    "arx-32": ModelRun("arx", horizon=32),
+    "arx-32c": ModelRun("arx", horizon=32, causal=True),
+}
 #: Ablations: shuffled action chunks (Table II last row, diagnostic) and state groups (Table IV).
 ABLATION_MODELS: dict[str, ModelRun] = {
     "ac-gru-shuffled": ModelRun("ac-gru", shuffle_actions=True),

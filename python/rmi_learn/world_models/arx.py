@@ -3,7 +3,14 @@ residuals z_{t+tau} - z_t, the contact indicator and the friction one-hot over t
 the flattened history [Y_t, M_t] and action chunk A_t, fitted in closed form on training
 windows whose targets are complete (every target_mask entry is 1). Inputs and targets are
 centred, so the intercept is not penalised. Contact and friction scores are clipped to
-[1e-4, 1 - 1e-4] and turned into logits / log-probabilities."""
+[1e-4, 1 - 1e-4] and turned into logits / log-probabilities.
+
+By default every forecast step sees the whole chunk (the paper's lookahead model): the
+forecast at step k also regresses on the setpoints after k, which cannot have caused it but
+correlate with it in the data. ``causal=True`` fits each step on the history and the
+setpoints up to and including its own only (one ridge solve per step). The terminal step is
+the same fit either way; the intermediate steps differ, which matters to a controller that
+asks for the water at a goal time inside the chunk (re-planning with a shrinking horizon)."""
 
 from __future__ import annotations
 
@@ -33,9 +40,11 @@ class LinearARX(WorldModel):
         horizon: int = HORIZON,
         ridge: float = 1e-2,
         state_groups: str = "ALL",
+        causal: bool = False,
     ):
         super().__init__(state_groups)
         self.history, self.horizon, self.ridge = history, horizon, ridge
+        self.causal = bool(causal)
         self.fixed_horizon = horizon
         p = history * 2 * N_OBS + horizon * N_U
         q = horizon * (N_Z + 1 + N_FRIC)
@@ -50,6 +59,7 @@ class LinearARX(WorldModel):
             "history": self.history,
             "horizon": self.horizon,
             "ridge": self.ridge,
+            "causal": self.causal,
         }
 
     def features(
@@ -98,12 +108,26 @@ class LinearARX(WorldModel):
         mx, my = sx / n, sy / n
         cxx = xtx - n * torch.outer(mx, mx)
         cxy = xty - n * torch.outer(mx, my)
-        w = torch.linalg.solve(cxx + self.ridge * torch.eye(p, dtype=torch.float64), cxy)
+        a = cxx + self.ridge * torch.eye(p, dtype=torch.float64)
+        w = self._solve_causal(a, cxy) if self.causal else torch.linalg.solve(a, cxy)
         self.W.copy_(w.float())
         self.x_mean.copy_(mx.float())
         self.y_mean.copy_(my.float())
         self.n_fit.fill_(n)
         return n
+
+    def _solve_causal(self, a: torch.Tensor, cxy: torch.Tensor) -> torch.Tensor:
+        """Per forecast step k, the ridge solution on the history and setpoints 0..k only;
+        the rows of later setpoints are zero."""
+        p, q = cxy.shape
+        per_step = q // self.horizon
+        n_hist = p - self.horizon * N_U
+        w = torch.zeros(p, q, dtype=torch.float64)
+        for k in range(self.horizon):
+            rows = n_hist + (k + 1) * N_U
+            cols = slice(k * per_step, (k + 1) * per_step)
+            w[:rows, cols] = torch.linalg.solve(a[:rows, :rows], cxy[:rows, cols])
+        return w
 
     def forward(
         self, hist: torch.Tensor, hist_mask: torch.Tensor, actions: torch.Tensor, **_: object
