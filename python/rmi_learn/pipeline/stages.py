@@ -60,8 +60,8 @@ class ModelRun:
         out = ["--model", self.model]
         out += ["--shuffle-actions"] if self.shuffle_actions else []
         out += ["--state-groups", self.state_groups] if self.state_groups != "ALL" else []
-        out += ["--model-arg", f"horizon={self.horizon}"] if self.horizon is not None else []
-        out += ["--model-arg", "causal=true"] if self.causal else []
+        for key, value in (self.model_args() or {}).items():
+            out += ["--model-arg", f"{key}={json.dumps(value)}"]
         return out
 
     def model_args(self) -> dict[str, Any] | None:
