@@ -19,7 +19,7 @@ import json
 import time
 
 import rmi_sph
-from rmi_learn.data.sweep import load_grid
+from rmi_learn.data.sweep import load_grid, size_overrides
 
 # Simulated time the controller spends closing and lifting (s); the other phases have fixed
 # durations in the config.
@@ -34,7 +34,8 @@ def main() -> None:
     args = ap.parse_args()
     grid = load_grid(args.grid)
     for size in grid["sizes_cm"]:
-        cfg = rmi_sph.trial_config(size, 0.6, 110.0, 200.0, grid["radius_m"], **grid["overrides"])
+        overrides = size_overrides(grid, size)
+        cfg = rmi_sph.trial_config(size, 0.6, 110.0, 200.0, grid["radius_m"], **overrides)
         sim = rmi_sph.Trial(cfg, num_threads=args.threads)
         sim.step(5)  # first steps build caches and warm starts
         t0 = time.perf_counter()

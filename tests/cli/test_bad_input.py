@@ -118,8 +118,18 @@ def grid_file(tmp_path: Path, **changes: object) -> Path:
         ({"overrides": {"bogus": 1}}, "`bogus`"),
         ({"seeds": [2**70]}, f"seeds must be integers in [0, {2**63 - 1}]"),
         ({"porosities": [[0.5]]}, "porosities must be a list of numbers"),
+        ({"overrides_by_size": {"12": {"dt": 0.0025}}}, "overrides_by_size key '12'"),
+        ({"overrides_by_size": {"8": {"bogus": 1}}}, "`bogus`"),
     ],
-    ids=["number", "overrides-number", "overrides-unknown", "huge-seed", "nested-list"],
+    ids=[
+        "number",
+        "overrides-number",
+        "overrides-unknown",
+        "huge-seed",
+        "nested-list",
+        "by-size-other-size",
+        "by-size-unknown",
+    ],
 )
 def test_sweep_refuses_a_bad_grid_file(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], changes: dict[str, object], says: str

@@ -24,9 +24,10 @@ import pytest
 
 from rmi_learn.cli import main as cli_main
 from rmi_learn.data.runs import iter_run_files, read_run, run_path, scan_runs
-from rmi_learn.data.schema import FORCE_LIMIT_N
+from rmi_learn.data.schema import CONTROL_DT, FORCE_LIMIT_N
 from rmi_learn.data.sweep import (
     INDEX_FILE,
+    PRESETS,
     RUNS_SUBDIR,
     RunSpec,
     build_index,
@@ -38,6 +39,7 @@ from rmi_learn.data.sweep import (
     validate_grid,
 )
 from rmi_learn.data.synthetic import simulate_toy_run
+from rmi_learn.policies.closed_loop import control_substeps
 
 TESTS = Path(__file__).resolve().parent
 FAIL_HOLD = 50.0  # the double raises RuntimeError for this holding force
@@ -143,6 +145,11 @@ def test_presets() -> None:
     assert fine["radius_m"] < paper["radius_m"]
     sample = load_grid(path=Path(__file__).parents[2] / "studies" / "grids" / "paper-sample.json")
     assert (sample["radius_m"], sample["overrides"]) == (paper["radius_m"], paper["overrides"])
+    assert sample["overrides_by_size"] == paper["overrides_by_size"]
+    # Per size the converged time step (docs/engine.md): 2 ms for 8 cm, 2.5 ms above.
+    dts = {s.params["size_cm"]: s.overrides["dt"] for s in expand_grid(paper)}
+    assert dts == {8: 0.002, 10: 0.0025, 12: 0.0025}
+    assert "overrides_by_size" not in fine
     assert {s.run_id for s in expand_grid(sample)} < {s.run_id for s in expand_grid(paper)}
     quick, tiny = load_grid("quick"), load_grid("tiny")
     assert 1 < len(expand_grid(tiny)) < len(expand_grid(quick)) < 594
@@ -168,6 +175,10 @@ def test_presets() -> None:
         ({"porosities": [1.2]}, "porosity"),
         ({"seeds": [0, 0]}, "duplicates"),
         ({"colour": "red"}, "unknown keys"),
+        ({"overrides_by_size": {"10": {"dt": 0.003}}}, "overrides_by_size key '10'"),
+        ({"overrides_by_size": {"eight": {}}}, "overrides_by_size key 'eight'"),
+        ({"overrides_by_size": {"8": 0.003}}, r"overrides_by_size\['8'\] must be an object"),
+        ({"overrides_by_size": [0.003]}, "overrides_by_size must be an object"),
     ],
 )
 def test_grid_validation(change: dict[str, Any], message: str) -> None:
@@ -181,6 +192,30 @@ def test_grid_validation(change: dict[str, Any], message: str) -> None:
     }
     with pytest.raises(ValueError, match=message):
         validate_grid({**base, **change})
+
+
+def test_overrides_by_size_apply_to_their_size_only_and_win_over_overrides() -> None:
+    g = grid(
+        overrides={"dt": 0.002, "hold_time": 1.0},
+        overrides_by_size={" 10": {"dt": 0.0025}},
+        seeds=[0, 1],
+        perturbation={"seeds": [1]},
+    )
+    assert g["overrides_by_size"] == {"10": {"dt": 0.0025}}
+    for spec in expand_grid(g):
+        dt = 0.0025 if spec.params["size_cm"] == 10 else 0.002
+        assert spec.overrides["dt"] == dt and spec.overrides["hold_time"] == 1.0
+        assert ("perturbation" in spec.overrides) == (spec.params["seed"] == 1)
+    # A grid without the key keeps its earlier normal form (resumed sweeps compare grids).
+    assert "overrides_by_size" not in grid()
+
+
+@pytest.mark.parametrize("preset", PRESETS)
+def test_every_preset_time_step_divides_the_control_step(preset: str) -> None:
+    # Closed-loop replay and the goal-reaching benchmark act every CONTROL_DT on engine steps.
+    for spec in expand_grid(load_grid(preset)):
+        dt = spec.overrides.get("dt", 0.001)  # TrialConfig's default
+        assert control_substeps(dt) * dt == pytest.approx(CONTROL_DT, rel=1e-12)
 
 
 def test_estimate_wall_time() -> None:

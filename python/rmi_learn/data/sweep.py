@@ -79,6 +79,7 @@ _GRID_KEYS = {
     "seeds",
     "radius_m",
     "overrides",
+    "overrides_by_size",
     "perturbation",
 }
 
@@ -97,8 +98,10 @@ def load_grid(
     file. Keys: ``sizes_cm`` (8, 10, 12), ``porosities`` (0..1), ``hold_forces_N`` and
     ``squeeze_forces_N`` (0 < F <= 400 N), ``seeds`` (ints), ``radius_m`` (particle radius,
     m), optional ``overrides`` (passed to ``make_config`` as keyword arguments, e.g. trial
-    timings), optional ``perturbation`` (``{"seeds": [...], ...}``: the runs of those seeds
-    follow seeded force targets from the lift on, see :func:`perturbation_override`),
+    timings), optional ``overrides_by_size`` (``{"10": {"dt": 0.0025}}``: overrides for the
+    runs of one sponge size, on top of ``overrides``), optional ``perturbation``
+    (``{"seeds": [...], ...}``: the runs of those seeds follow seeded force targets from the
+    lift on, see :func:`perturbation_override`),
     ``name`` and ``description``."""
     grid, source = read_json_source("rmi_learn.data.grids", PRESETS, preset, path, "grid")
     return validate_grid(grid, source)
@@ -149,6 +152,9 @@ def validate_grid(grid: Mapping[str, Any], source: str = "grid") -> dict[str, An
     for s in g["seeds"]:
         if not isinstance(s, int) or not 0 <= s <= SEED_MAX:
             raise ValueError(f"{source}: seeds must be integers in [0, {SEED_MAX}], got {s!r}")
+    by_size = _validate_by_size(grid.get("overrides_by_size"), g["sizes_cm"], source)
+    if by_size is not None:  # absent, not null: grids of earlier sweeps compare equal
+        g["overrides_by_size"] = by_size
     perturbation = _validate_perturbation(grid.get("perturbation"), g["seeds"], source)
     if perturbation is not None:  # absent, not null: grids of earlier sweeps compare equal
         g["perturbation"] = perturbation
@@ -157,6 +163,34 @@ def validate_grid(grid: Mapping[str, Any], source: str = "grid") -> dict[str, An
         raise ValueError(f"{source}: radius_m {r!r} outside (0, 0.05) m")
     g["radius_m"] = float(r)
     return g
+
+
+def _validate_by_size(
+    spec: Any, sizes: list[int], source: str
+) -> dict[str, dict[str, Any]] | None:
+    """The grid's ``overrides_by_size`` entry: keys are sponge sizes of the grid in cm (JSON
+    keys, so strings), values objects of trial config fields like ``overrides``."""
+    if spec is None:
+        return None
+    if not isinstance(spec, Mapping):
+        raise ValueError(
+            f"{source}: overrides_by_size must be an object keyed by size in cm, "
+            f"got {json_kind(spec)}"
+        )
+    out: dict[str, dict[str, Any]] = {}
+    for key, value in spec.items():
+        size = str(key).strip()
+        if not size.isdigit() or int(size) not in sizes:
+            raise ValueError(
+                f"{source}: overrides_by_size key {key!r} is not one of the grid's sizes_cm {sizes}"
+            )
+        if not isinstance(value, Mapping):
+            raise ValueError(
+                f"{source}: overrides_by_size[{key!r}] must be an object of trial config "
+                f"fields, got {json_kind(value)}"
+            )
+        out[str(int(size))] = dict(value)
+    return out
 
 
 def _validate_perturbation(spec: Any, seeds: list[int], source: str) -> dict[str, Any] | None:
@@ -180,6 +214,12 @@ def _validate_perturbation(spec: Any, seeds: list[int], source: str) -> dict[str
             "(list the perturbed seeds under perturbation.seeds)"
         )
     return {"seeds": list(which), **{k: v for k, v in spec.items() if k != "seeds"}}
+
+
+def size_overrides(grid: Mapping[str, Any], size_cm: int) -> dict[str, Any]:
+    """The trial config overrides of the grid's runs of one sponge size: ``overrides`` with
+    that size's ``overrides_by_size`` entry on top."""
+    return {**grid["overrides"], **grid.get("overrides_by_size", {}).get(str(int(size_cm)), {})}
 
 
 def perturbation_override(grid: Mapping[str, Any], seed: int) -> dict[str, Any]:
@@ -222,7 +262,7 @@ def expand_grid(grid: Mapping[str, Any]) -> list[RunSpec]:
                             "seed": int(seed),
                         }
                         overrides = {
-                            **grid["overrides"],
+                            **size_overrides(grid, int(size)),
                             **perturbation_override(grid, int(seed)),
                         }
                         specs.append(RunSpec(params, grid["radius_m"], overrides))
