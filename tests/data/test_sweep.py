@@ -24,10 +24,9 @@ import pytest
 
 from rmi_learn.cli import main as cli_main
 from rmi_learn.data.runs import iter_run_files, read_run, run_path, scan_runs
-from rmi_learn.data.schema import CONTROL_DT, FORCE_LIMIT_N
+from rmi_learn.data.schema import FORCE_LIMIT_N
 from rmi_learn.data.sweep import (
     INDEX_FILE,
-    PRESETS,
     RUNS_SUBDIR,
     RunSpec,
     build_index,
@@ -39,7 +38,6 @@ from rmi_learn.data.sweep import (
     validate_grid,
 )
 from rmi_learn.data.synthetic import simulate_toy_run
-from rmi_learn.policies.closed_loop import control_substeps
 
 TESTS = Path(__file__).resolve().parent
 FAIL_HOLD = 50.0  # the double raises RuntimeError for this holding force
@@ -208,14 +206,6 @@ def test_overrides_by_size_apply_to_their_size_only_and_win_over_overrides() -> 
         assert ("perturbation" in spec.overrides) == (spec.params["seed"] == 1)
     # A grid without the key keeps its earlier normal form (resumed sweeps compare grids).
     assert "overrides_by_size" not in grid()
-
-
-@pytest.mark.parametrize("preset", PRESETS)
-def test_every_preset_time_step_divides_the_control_step(preset: str) -> None:
-    # Closed-loop replay and the goal-reaching benchmark act every CONTROL_DT on engine steps.
-    for spec in expand_grid(load_grid(preset)):
-        dt = spec.overrides.get("dt", 0.001)  # TrialConfig's default
-        assert control_substeps(dt) * dt == pytest.approx(CONTROL_DT, rel=1e-12)
 
 
 def test_estimate_wall_time() -> None:

@@ -8,9 +8,11 @@ from pathlib import Path
 import polars as pl
 import pytest
 
+import rmi_sph
 from rmi_learn.data import schema
 from rmi_learn.data.runs import read_run
-from rmi_learn.data.sweep import expand_grid, load_grid, run_sweep, validate_grid
+from rmi_learn.data.sweep import PRESETS, expand_grid, load_grid, run_sweep, validate_grid
+from rmi_learn.policies.closed_loop import control_substeps
 
 
 def test_tiny_preset_runs_with_the_engine_and_resumes(tmp_path: Path) -> None:
@@ -101,3 +103,19 @@ def test_a_perturbation_of_seeds_outside_the_grid_is_refused() -> None:
     bad = {**load_grid("tiny"), "perturbation": {"seeds": [0], "ramp_probability": 2}}
     with pytest.raises(ValueError, match=r"perturbation.ramp_probability"):
         run_sweep(expand_grid(validate_grid(bad)), "/nonexistent/x", workers=0, progress=False)
+
+
+@pytest.mark.parametrize("preset", PRESETS)
+def test_every_preset_time_step_divides_the_control_step(preset: str) -> None:
+    # Closed-loop replay and the goal-reaching benchmark act every CONTROL_DT on engine steps.
+    # The time step is the one the engine configures for the run (its default where unset).
+    grid = load_grid(preset)
+    for size in grid["sizes_cm"]:
+        spec = next(s for s in expand_grid(grid) if s.params["size_cm"] == size)
+        p = spec.params
+        cfg = rmi_sph.trial_config(
+            size, p["porosity"], p["F_hold"], p["F_squeeze"], spec.radius, p["seed"],
+            **spec.overrides,
+        )  # fmt: skip
+        dt = float(cfg["dt"])
+        assert control_substeps(dt) * dt == pytest.approx(schema.CONTROL_DT, rel=1e-12)

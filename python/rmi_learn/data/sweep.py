@@ -165,9 +165,7 @@ def validate_grid(grid: Mapping[str, Any], source: str = "grid") -> dict[str, An
     return g
 
 
-def _validate_by_size(
-    spec: Any, sizes: list[int], source: str
-) -> dict[str, dict[str, Any]] | None:
+def _validate_by_size(spec: Any, sizes: list[int], source: str) -> dict[str, dict[str, Any]] | None:
     """The grid's ``overrides_by_size`` entry: keys are sponge sizes of the grid in cm (JSON
     keys, so strings), values objects of trial config fields like ``overrides``."""
     if spec is None:
@@ -250,6 +248,7 @@ def expand_grid(grid: Mapping[str, Any]) -> list[RunSpec]:
     """Every run of a validated grid, in a fixed order (size, porosity, hold, squeeze, seed)."""
     specs = []
     for size in grid["sizes_cm"]:
+        base = size_overrides(grid, int(size))
         for por in grid["porosities"]:
             for fh in grid["hold_forces_N"]:
                 for fs in grid["squeeze_forces_N"]:
@@ -261,10 +260,7 @@ def expand_grid(grid: Mapping[str, Any]) -> list[RunSpec]:
                             "F_squeeze": float(fs),
                             "seed": int(seed),
                         }
-                        overrides = {
-                            **size_overrides(grid, int(size)),
-                            **perturbation_override(grid, int(seed)),
-                        }
+                        overrides = {**base, **perturbation_override(grid, int(seed))}
                         specs.append(RunSpec(params, grid["radius_m"], overrides))
     return specs
 
