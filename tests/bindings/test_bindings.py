@@ -86,6 +86,7 @@ def test_default_and_trial_config(tmp_path: Path) -> None:
         (lambda: rmi_sph.trial_config(8, 0.6, 20, 40, settle_time=-1), "controller.settle_time"),
         (lambda: rmi_sph.trial_config(8, 0.6, 20, 40, material={"porosty": 1}), "material.porosty"),
         (lambda: rmi_sph.trial_config(8, 0.6, 20, 40, gate={"k_stable": 2.5}), "gate.k_stable"),
+        (lambda: rmi_sph.trial_config(8, 0.6, 20, 40, cg={"tolerance": 0.5}), "cg.tolerance"),
         (lambda: rmi_sph.validate_config({"dt": "fast"}), "dt"),
         (lambda: rmi_sph.validate_config({"size": [0.1, 0.1]}), "size"),
         (lambda: rmi_sph.validate_config({"controller": 3}), "controller"),

@@ -2,15 +2,19 @@
 //! drains under gravity. Prints particle counts, solver figures and retained water over time.
 //!
 //! `demo [--radius 0.005] [--seconds 0.3] [--threads 2] [--preconditioner auto|two_level|
-//! block_jacobi|identity] [--coarse-cell 4]`; the last line is a checksum of the final state,
-//! for comparing builds and thread counts bit for bit.
+//! block_jacobi|identity] [--coarse-cell 4] [--cg-tolerance 3e-3]`; the last line is a
+//! checksum of the final state, for comparing builds and thread counts bit for bit.
+//! `--cg-tolerance 1e-4` is the reference PIISPH's setting.
 
 use rmi_benches::{fail, Args};
 use rmi_sph::{presets, Simulation};
 use std::time::Instant;
 
 fn main() {
-    let args = Args::parse(&["--radius", "--seconds", "--threads", "--preconditioner", "--coarse-cell"], &[]);
+    let args = Args::parse(
+        &["--radius", "--seconds", "--threads", "--preconditioner", "--coarse-cell", "--cg-tolerance"],
+        &[],
+    );
     let radius: f64 = args.value("--radius", 0.005);
     let seconds: f64 = args.value("--seconds", 0.3);
     let threads: usize = args.value("--threads", 2);
@@ -23,6 +27,7 @@ fn main() {
         };
     }
     cfg.cg.coarse_cell = args.value("--coarse-cell", cfg.cg.coarse_cell);
+    cfg.cg.tolerance = args.value("--cg-tolerance", cfg.cg.tolerance);
     let mut sim = match Simulation::new(cfg, Some(threads)) {
         Ok(s) => s,
         Err(e) => fail(&e.to_string()),

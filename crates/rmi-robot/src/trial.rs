@@ -10,7 +10,7 @@ use crate::gate::{Gate, GateInput, GateParams};
 use crate::gripper::{add_pads, Gripper, GripperConfig, LIFT_AXIS};
 use crate::observe::{summarise, Observation};
 use nalgebra::Vector3;
-use rmi_sph::config::{check_range, PorousMaterial, Preconditioner, PressureConfig, SimConfig, WallLayer};
+use rmi_sph::config::{check_range, CgConfig, PorousMaterial, Preconditioner, PressureConfig, SimConfig, WallLayer};
 use rmi_sph::contact::{ContactMemory, FrictionParams};
 use rmi_sph::simulation::{read_state, seal, unseal, write_atomic, Snapshot};
 use rmi_sph::{presets, Result, RmiError, Simulation};
@@ -55,6 +55,11 @@ pub struct TrialConfig {
     pub gate: GateParams,
     /// Pressure solve (tolerance, iterations, drag coupling of the pressure impulse).
     pub pressure: PressureConfig,
+    /// Implicit solve (tolerance, iterations, preconditioner). In a trial, `auto` means block
+    /// Jacobi at every resolution: over a gripped trial the two-level CG's set-up costs more
+    /// than it saves (settling and ramping gain, the lifted phases lose;
+    /// docs/benchmark-history.md). Name `two_level` to use it anyway.
+    pub cg: CgConfig,
     /// Placement of the floor's and pads' boundary particles.
     pub wall_layer: WallLayer,
     /// Simulator steps per recorded row of [`run_trial`].
@@ -80,6 +85,7 @@ impl Default for TrialConfig {
             controller: ControllerParams::default(),
             gate: GateParams::default(),
             pressure: PressureConfig::default(),
+            cg: CgConfig::default(),
             wall_layer: WallLayer::Sunk,
             record_every: 5,
         }
@@ -154,10 +160,10 @@ impl TrialConfig {
         cfg.scene.soak_time = self.soak_time;
         cfg.pressure = self.pressure.clone();
         cfg.wall_layer = self.wall_layer;
-        // Over a gripped trial the two-level CG's set-up costs more than it saves (settling and
-        // ramping gain 7-13 %, the lifted phases lose 15-20 %; docs/benchmark-history.md), so trials
-        // keep block Jacobi whatever the resolution.
-        cfg.cg.preconditioner = Preconditioner::BlockJacobi;
+        cfg.cg = self.cg.clone();
+        if cfg.cg.preconditioner == Preconditioner::Auto {
+            cfg.cg.preconditioner = Preconditioner::BlockJacobi;
+        }
         let block = &mut cfg.scene.porous_blocks[0];
         block.material = PorousMaterial { porosity: self.porosity, ..self.material.clone() };
         block.saturated = self.saturated;

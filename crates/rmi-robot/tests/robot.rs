@@ -264,3 +264,24 @@ fn saturated_sponge_friction_stays_in_the_coulomb_cone() {
         assert_eq!(o.lift_success, should_lift, "{o:?}");
     }
 }
+
+/// A trial's `cg` reaches the engine: its tolerance as given, `auto` as block Jacobi (the
+/// two-level set-up does not pay over a gripped trial), a named preconditioner as named.
+#[test]
+fn trial_cg_settings_reach_the_engine() {
+    use rmi_sph::config::Preconditioner;
+    let mut c = TrialConfig::default();
+    assert_eq!(c.cg.preconditioner, Preconditioner::Auto);
+    c.cg.tolerance = 1e-4;
+    let sim = c.sim_config();
+    assert_eq!(sim.cg.preconditioner, Preconditioner::BlockJacobi);
+    assert_eq!(sim.cg.tolerance, 1e-4);
+    c.cg.preconditioner = Preconditioner::TwoLevel;
+    assert_eq!(c.sim_config().cg.preconditioner, Preconditioner::TwoLevel);
+    let partial = r#"{"cg": {"tolerance": 2e-3}}"#;
+    let parsed = TrialConfig::from_json(partial).unwrap();
+    assert_eq!(parsed.sim_config().cg.preconditioner, Preconditioner::BlockJacobi);
+    assert_eq!(parsed.sim_config().cg.tolerance, 2e-3);
+    let e = TrialConfig::from_json(r#"{"cg": {"tolerance": 0.5}}"#).unwrap_err().to_string();
+    assert!(e.contains("cg.tolerance") && e.contains("0.5"), "{e}");
+}

@@ -280,7 +280,9 @@ impl Default for PressureConfig {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct CgConfig {
-    /// Relative residual tolerance.
+    /// Relative residual tolerance of each implicit solve. The default is the loosest
+    /// measured at which the validation cases stay within their bounds and the trials'
+    /// observables keep their values at 1e-4 (docs/engine.md, "Implicit solve tolerance").
     pub tolerance: f64,
     /// Maximum number of CG iterations.
     pub max_iterations: u32,
@@ -295,7 +297,7 @@ pub struct CgConfig {
 impl Default for CgConfig {
     fn default() -> Self {
         CgConfig {
-            tolerance: 1e-4,
+            tolerance: 3e-3,
             max_iterations: 100,
             preconditioner: Preconditioner::Auto,
             warm_start: true,

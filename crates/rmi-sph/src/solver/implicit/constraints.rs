@@ -97,17 +97,19 @@ pub(super) fn precondition(minv: &[Matrix3<f64>], filters: &[Filter], a: usize, 
 }
 
 /// What the constrained rows still lack after a solve, `A x - w.b` (N s), in the components
-/// each constraint holds: the impulse it exerted on its particle.
+/// each constraint holds: the impulse it exerted on its particle. Only the constrained rows
+/// of `A x` are evaluated (each reads the linearised stress of its rest neighbours, so the
+/// stress pass still covers every solid).
 pub(super) fn constraint_impulses(op: &Op, x: &[Vector3<f64>], w: &mut CgWork) -> Vec<Vector3<f64>> {
     if op.constraints.is_empty() {
         return Vec::new();
     }
-    op.apply(x, &mut w.ap, &mut w.prl);
+    op.stress_pass(x, &mut w.prl);
     op.constraints
         .iter()
         .map(|con| {
             let a = con.particle as usize;
-            con.held(&(w.ap[a] - w.b[a]))
+            con.held(&(op.row(a, x, &w.prl) - w.b[a]))
         })
         .collect()
 }

@@ -15,11 +15,12 @@ use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
 /// Free skeleton particles from which [`Preconditioner::Auto`] uses the two-level
-/// preconditioner. Building `A Z` costs about as much as ten CG iterations per step (two
-/// microseconds per particle), which pays where block Jacobi needs many iterations: a fine
-/// skeleton (16,000 particles at r = 2.5 mm: 0.76-0.84x the step time) but not the medium
-/// sponge at r = 5 mm (2,000), which drains 17 % slower with it once the pore water rests
-/// (docs/benchmark-history.md). Trials set block Jacobi themselves (`TrialConfig::sim_config`).
+/// preconditioner. Building `A Z` costs about as much as ten CG iterations per step, which
+/// pays where block Jacobi needs many more iterations than the two-level CG: a fine skeleton
+/// (16,000 particles at r = 2.5 mm) at tight tolerances, not the medium sponge at r = 5 mm
+/// (2,000); at the default tolerance the two break even on the fine skeleton
+/// (docs/benchmark-history.md). Trials resolve `auto` to block Jacobi themselves
+/// (`TrialConfig::sim_config`).
 pub const TWO_LEVEL_MIN_SOLIDS: usize = 4000;
 
 /// Settings resolved from the config.
@@ -259,7 +260,7 @@ impl<'a> Op<'a> {
     }
     /// Row `a` of `A y = m y - dt F_lin(y)`, given the linearised stress `prl` of `y`.
     #[inline(always)]
-    fn row(&self, a: usize, y: &[Vector3<f64>], prl: &[Matrix3<f64>]) -> Vector3<f64> {
+    pub(super) fn row(&self, a: usize, y: &[Vector3<f64>], prl: &[Matrix3<f64>]) -> Vector3<f64> {
         let c = self.c;
         let nf = c.p.n_fluid;
         let m = c.p.mass[a];
@@ -377,6 +378,8 @@ mod tests {
         let mut cfg = presets::sponge([0.06, 0.06, 0.1], 0.6, 0.005);
         cfg.cg.preconditioner = Preconditioner::TwoLevel;
         cfg.cg.coarse_cell = 2.0;
+        // A tight stop, so that the two preconditioners' answers can be compared closely.
+        cfg.cg.tolerance = 1e-4;
         // Every term of the operator: wall viscosity too (off by default).
         cfg.fluid.boundary_viscosity = 0.01;
         cfg.scene.bodies.push(crate::config::BodyConfig {
