@@ -185,8 +185,10 @@ def test_executes_chunks_and_reproduces_the_original(sweep_dir: Path, tmp_path: 
     first = fl.filter(pl.col("chunk") == "first")["M_L_real_kg"].to_list()
     sel = fl.filter(pl.col("chunk") == "selected")["M_L_real_kg"].to_list()
     # The selected chunk is the original commands as rmi rank stores them (float32), so its
-    # outcome is the original's up to that rounding.
-    np.testing.assert_allclose(sel, orig["M_L_real_kg"].to_list(), rtol=1e-9)
+    # outcome is the original's up to that rounding: a relative perturbation of about 6e-8 of
+    # the force target, which moves where the implicit solve's CG stops by as much. Within a
+    # thousandth of one particle's mass, the unit of the fidelity bounds above.
+    np.testing.assert_allclose(sel, orig["M_L_real_kg"].to_list(), rtol=0, atol=1e-3 * particle_kg)
     assert first != sel
     # The broken chunk is recorded as such, with no value, and left out of the table.
     bad = rows.filter((pl.col("objective") == "diffusion") & (pl.col("chunk") == "selected"))
