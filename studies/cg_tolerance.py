@@ -27,15 +27,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from convergence import GRIDS, PHASES, _write_atomic, observables
-
-
-def paper_overrides(size_cm: int) -> dict[str, float]:
-    """The ``paper`` grid's overrides for one sponge size (its dt and phase timings)."""
-    grid = json.loads((GRIDS / "paper.json").read_text())
-    merged = dict(grid.get("overrides", {}))
-    merged.update(grid.get("overrides_by_size", {}).get(str(size_cm), {}))
-    return {k: float(v) for k, v in merged.items()}
+from convergence import PHASES, _write_atomic, observables
 
 
 def trial_name(size_cm: int, hold: float, squeeze: float, tol: float) -> str:
@@ -44,20 +36,20 @@ def trial_name(size_cm: int, hold: float, squeeze: float, tol: float) -> str:
 
 
 def config_of(job: dict[str, Any]) -> dict[str, Any]:
-    """The trial config of one job (the engine validates it)."""
+    """The trial config of one job (the engine validates it): the ``paper`` grid's radius and
+    overrides for the job's size (set by :func:`run`), with the job's CG tolerance."""
     import rmi_sph
 
-    grid = json.loads((GRIDS / "paper.json").read_text())
     return dict(
         rmi_sph.trial_config(
             job["size_cm"],
             0.6,
             job["hold_N"],
             job["squeeze_N"],
-            float(grid["radius_m"]),
+            job["radius_m"],
             0,
             cg={"tolerance": job["tolerance"]},
-            **paper_overrides(job["size_cm"]),
+            **job["overrides"],
         )
     )
 
@@ -76,15 +68,19 @@ def _run_one(job: dict[str, Any]) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from rmi_learn.data.sweep import load_grid, size_overrides
+
     out = Path(args.out)
+    grid = load_grid("paper")
     jobs = []
     for size in args.sizes:
+        paper = {"radius_m": grid["radius_m"], "overrides": size_overrides(grid, size)}
         for pair in args.forces:
             hold, squeeze = (float(x) for x in pair.split("/"))
             for tol in args.tolerances:
                 path = out / f"{trial_name(size, hold, squeeze, tol)}.json"
                 if not path.is_file():
-                    job = {"size_cm": size, "hold_N": hold, "squeeze_N": squeeze}
+                    job = {"size_cm": size, "hold_N": hold, "squeeze_N": squeeze, **paper}
                     jobs.append({**job, "tolerance": tol, "path": str(path)})
     for j in jobs:
         config_of(j)  # every config is checked before the first trial starts
