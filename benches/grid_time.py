@@ -2,11 +2,15 @@
 
 Reads a finished sample sweep (``index.parquet``: each run's size and wall time), takes the
 mean trial time per sponge size, gives every run of the target grid its size's mean, and
-schedules them longest first on N workers (each run to the worker that frees first, as
-``rmi sweep`` does): the predicted wall time per worker count. A worker is one trial process
-on its own core (``--threads-per-run 1``), so the sample must be measured that way, e.g.
-on a 2-core machine with ``--workers 2 --threads-per-run 1``; then N workers are N such
-cores, on one machine or on several through Ray.
+schedules the grid's jobs longest first on N workers (each job to the worker that frees
+first, as ``rmi sweep`` does): the predicted wall time per worker count. A job is a group of
+runs that differ only in their squeeze force (``rmi sweep`` runs each group from one shared
+prefix, ``rmi_learn.data.sweep.prefix_groups``), and a run's recorded wall time is its share
+of that prefix plus its own squeeze: so the sample must hold the grid's squeeze forces for
+its per-run times to be the grid's. A worker is one trial process on its own core
+(``--threads-per-run 1``), so the sample must be measured that way, e.g. on a 2-core machine
+with ``--workers 2 --threads-per-run 1``; then N workers are N such cores, on one machine or
+on several through Ray.
 
     rmi sweep --grid studies/grids/paper-sample.json --out results/paper-sample \\
         --workers 2 --threads-per-run 1
@@ -62,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--json", action="store_true", help="print the result as JSON")
     a = ap.parse_args(argv)
-    from rmi_learn.data.sweep import PRESETS, expand_grid, load_grid
+    from rmi_learn.data.sweep import PRESETS, _configs_of, expand_grid, load_grid, prefix_groups
 
     try:
         index = Path(a.sample) / "index.parquet"
@@ -79,13 +83,25 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError) as exc:
         print(f"grid_time: {exc}", file=sys.stderr)
         return 2
-    times = [per_size[s.params["size_cm"]] for s in specs]
-    rows = [{"workers": w, "wall_h": makespan(times, w) / 3600.0} for w in a.workers]
+    groups = prefix_groups(specs, _configs_of(specs, None))
+    jobs = [sum(per_size[s.params["size_cm"]] for s in g) for g in groups]
+    sample_grid = Path(a.sample) / "grid.json"
+    if sample_grid.is_file():
+        forces = json.loads(sample_grid.read_text()).get("squeeze_forces_N")
+        if forces is not None and sorted(forces) != sorted(grid["squeeze_forces_N"]):
+            print(
+                f"grid_time: the sample's squeeze forces {forces} are not the grid's "
+                f"{grid['squeeze_forces_N']}: its runs share their prefixes differently, so the "
+                "per-run times are only approximate",
+                file=sys.stderr,
+            )
+    rows = [{"workers": w, "wall_h": makespan(jobs, w) / 3600.0} for w in a.workers]
     result = {
         "grid": grid.get("name", a.grid),
         "runs": len(specs),
+        "jobs": len(groups),
         "mean_trial_s_by_size": per_size,
-        "cpu_hours": sum(times) / 3600.0,
+        "cpu_hours": sum(jobs) / 3600.0,
         "wall": rows,
     }
     if a.json:
@@ -93,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     sizes = ", ".join(f"{s} cm {t:.0f} s" for s, t in per_size.items())
     print(
-        f"grid {result['grid']}: {len(specs)} runs; mean trial {sizes}; "
+        f"grid {result['grid']}: {len(specs)} runs in {len(groups)} jobs; mean trial {sizes}; "
         f"{result['cpu_hours']:.1f} trial-hours"
     )
     for r in rows:

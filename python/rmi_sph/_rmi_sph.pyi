@@ -19,6 +19,7 @@ __all__ = [
     "engine_info",
     "_raise_error",
     "run_trial",
+    "run_squeeze_group",
     "trial_config",
     "default_config",
     "validate_config",
@@ -57,6 +58,15 @@ def run_trial(
     record_every: int | None = None,
 ) -> dict[str, Any]:
     """Run the scripted trial to its end (GIL released): ``{"columns", "outcome"}``."""
+
+def run_squeeze_group(
+    config: dict[str, Any] | str | os.PathLike[str],
+    squeeze_forces: list[float] | tuple[float, ...],
+    *,
+    num_threads: int | None = None,
+    record_every: int | None = None,
+) -> list[dict[str, Any]]:
+    """Run the trial once per squeeze force from one shared prefix: ``run_trial``'s results."""
 
 def trial_config(
     size_cm: float,

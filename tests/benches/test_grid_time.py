@@ -51,8 +51,9 @@ def test_cli_extrapolates_the_paper_grid(
     import json
 
     res = json.loads(capsys.readouterr().out)
-    # 198 runs per size of the paper grid: (60 + 100 + 150) s each.
-    assert res["runs"] == 594
+    # 198 runs per size of the paper grid: (60 + 100 + 150) s each, in 99 jobs of the six
+    # squeeze forces that share a prefix.
+    assert (res["runs"], res["jobs"]) == (594, 99)
     assert res["cpu_hours"] == pytest.approx(198 * 310.0 / 3600.0)
     assert res["wall"][1]["wall_h"] == pytest.approx(res["cpu_hours"] / 2, rel=0.01)
     assert m.main([str(tmp_path / "missing")]) == 2

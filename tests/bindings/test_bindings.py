@@ -424,6 +424,31 @@ def test_run_trial_columns_follow_the_contract(
     assert df.height == n and meta["outcome"]["final_water"] == out["final_water"]
 
 
+def test_squeeze_group_members_equal_their_own_trials(
+    trial: dict[str, Any], cfg: dict[str, Any]
+) -> None:
+    # One shared prefix, then each squeeze force: every member has the bits of run_trial
+    # with that force (the config's own squeeze force, 150 N, is the fixture's trial).
+    group = rmi_sph.run_squeeze_group(cfg, [60.0, cfg["squeeze_force"]], num_threads=2)
+    assert len(group) == 2
+    alone = rmi_sph.run_trial({**cfg, "squeeze_force": 60.0}, num_threads=1)
+    for member, own in [(group[0], alone), (group[1], trial)]:
+        assert tuple(member["columns"]) == tuple(own["columns"])
+        for name, column in own["columns"].items():
+            assert same(member["columns"][name], column), name
+        strip = lambda o: {k: v for k, v in o.items() if k != "wall_s"}  # noqa: E731
+        assert strip(member["outcome"]) == strip(own["outcome"])
+    removed = [g["outcome"]["water_removed"]["squeeze"] for g in group]
+    assert removed[0] != removed[1]
+    with pytest.raises(rmi_sph.ConfigError) as info:
+        rmi_sph.run_squeeze_group(cfg, [60.0, 500.0])
+    assert info.value.field == "squeeze_force"
+    perturbed = {**cfg, "controller": {**cfg["controller"], "perturbation": {"enabled": True}}}
+    with pytest.raises(rmi_sph.ConfigError) as info:
+        rmi_sph.run_squeeze_group(perturbed, [60.0])
+    assert info.value.field == "controller.perturbation.enabled"
+
+
 def test_record_every_override(cfg: dict[str, Any]) -> None:
     short = dict(cfg, controller=dict(cfg["controller"], squeeze_hold_time=0.0))
     a = rmi_sph.run_trial(short, num_threads=1, record_every=25)

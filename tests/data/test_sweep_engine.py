@@ -10,8 +10,16 @@ import pytest
 
 import rmi_sph
 from rmi_learn.data import schema
-from rmi_learn.data.runs import read_run
-from rmi_learn.data.sweep import PRESETS, expand_grid, load_grid, run_sweep, validate_grid
+from rmi_learn.data.runs import read_run, run_path
+from rmi_learn.data.sweep import (
+    PRESETS,
+    _configs_of,
+    expand_grid,
+    load_grid,
+    prefix_groups,
+    run_sweep,
+    validate_grid,
+)
 from rmi_learn.policies.closed_loop import control_substeps
 
 
@@ -42,6 +50,35 @@ def test_tiny_preset_runs_with_the_engine_and_resumes(tmp_path: Path) -> None:
         .collect()
     )
     assert q.height == len({(s.params["porosity"], s.params["F_hold"]) for s in specs})
+
+
+def test_runs_sharing_their_prefix_equal_the_runs_made_alone(tmp_path: Path) -> None:
+    # Two squeeze forces per (porosity, hold): the engine's runner runs each pair from one
+    # shared prefix; an injected runner (the same engine function) runs every trial alone.
+    # 10 N drops the porosity-0.7 sponge before the squeeze: both members end so.
+    grid = {**load_grid("tiny"), "hold_forces_N": [10, 60], "squeeze_forces_N": [120, 200]}
+    specs = expand_grid(grid)
+    assert len(prefix_groups(specs, _configs_of(specs, None))) == len(specs) // 2
+    shared, alone = tmp_path / "shared", tmp_path / "alone"
+    a = run_sweep(specs, shared, workers=2, progress=False, grid=grid)
+    b = run_sweep(specs, alone, workers=0, runner="rmi_sph:run_trial", progress=False, grid=grid)
+    assert a.ok == b.ok == len(specs)
+    for spec in specs:
+        fa, ma = read_run(run_path(shared / "runs", spec.params))
+        fb, mb = read_run(run_path(alone / "runs", spec.params))
+        assert fa.equals(fb), spec.run_id
+        timing = ("wall_s", "sweep_wall_s")
+        oa, ob = ({k: v for k, v in m["outcome"].items() if k not in timing} for m in (ma, mb))
+        assert oa == ob and ma["config"] == mb["config"], spec.run_id
+        # Shared: the group's wall time split evenly (alone, each run timed its own).
+        pair = [ma] + [
+            read_run(run_path(shared / "runs", {**spec.params, "F_squeeze": f}))[1]
+            for f in grid["squeeze_forces_N"]
+            if f != spec.params["F_squeeze"]
+        ]
+        assert len({m["outcome"]["sweep_wall_s"] for m in pair}) == 1, spec.run_id
+    lifted = pl.read_parquet(shared / "index.parquet")["lift_success"].to_list()
+    assert True in lifted and False in lifted
 
 
 def test_a_grid_the_engine_refuses_fails_before_any_run(tmp_path: Path) -> None:

@@ -12,6 +12,11 @@
 //! per step). `trial --config FILE --plate-load` prints instead, per phase, the mean normal
 //! (squeeze-axis) load on a plate (N) and the part of it the skeleton's contacts carry; the
 //! rest is water pressing on the plates through the boundary pressure.
+//!
+//! `trial [--config FILE] --squeeze-group 50,100,300` runs the trial once per squeeze force
+//! (N) from one shared prefix (everything before the squeeze,
+//! [`run_squeeze_group`](rmi_robot::run_squeeze_group)) and prints each member's outcome as a
+//! JSON line, then the group's wall time.
 
 use rmi_benches::{fail, Args};
 use rmi_robot::trial::{run_trial_with, Trial, TrialConfig};
@@ -32,6 +37,7 @@ fn main() {
             "--threads",
             "--config",
             "--every",
+            "--squeeze-group",
         ],
         &["--dry", "--profile", "--plate-load"],
     );
@@ -61,6 +67,10 @@ fn main() {
     }
     if args.flag("--profile") {
         profile(cfg, threads);
+        return;
+    }
+    if let Some(list) = args.text("--squeeze-group") {
+        squeeze_group(cfg, list, threads);
         return;
     }
     if args.flag("--plate-load") {
@@ -96,6 +106,28 @@ fn main() {
     });
     match res {
         Ok(r) => println!("{}", serde_json::to_string_pretty(&r.outcome).unwrap()),
+        Err(e @ rmi_sph::RmiError::InvalidConfig { .. }) => fail(&e.to_string()),
+        Err(e) => {
+            eprintln!("error: {e}");
+            std::process::exit(1);
+        }
+    }
+}
+
+/// The members of a squeeze group, one outcome per line, and the group's wall time.
+fn squeeze_group(cfg: TrialConfig, list: &str, threads: usize) {
+    let forces: Vec<f64> = list
+        .split(',')
+        .map(|f| f.trim().parse().unwrap_or_else(|_| fail(&format!("--squeeze-group: {f:?} is not a force in N"))))
+        .collect();
+    let t0 = std::time::Instant::now();
+    match rmi_robot::run_squeeze_group(cfg, &forces, Some(threads)) {
+        Ok(results) => {
+            for (f, r) in forces.iter().zip(results) {
+                println!("{{\"squeeze_force\": {f}, \"outcome\": {}}}", serde_json::to_string(&r.outcome).unwrap());
+            }
+            println!("{{\"group_wall_s\": {:.3}}}", t0.elapsed().as_secs_f64());
+        }
         Err(e @ rmi_sph::RmiError::InvalidConfig { .. }) => fail(&e.to_string()),
         Err(e) => {
             eprintln!("error: {e}");

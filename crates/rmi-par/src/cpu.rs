@@ -1,10 +1,13 @@
 //! Runtime CPU-feature dispatch for the solver's hot loops.
 //!
 //! The crate is built for baseline x86-64 so that the Python wheel runs on any x86-64 CPU.
-//! The loops that dominate a step (neighbour lists, pressure passes, densities, viscosity)
-//! run through [`hot`], which on CPUs with AVX2 and FMA (x86-64-v3: Intel Haswell and AMD
+//! The loops that dominate a step (neighbour lists, pressure passes, densities, viscosity,
+//! the implicit solve's operator rows and set-up, the skeleton's rotations and stresses) run
+//! through [`hot`], which on CPUs with AVX2 and FMA (x86-64-v3: Intel Haswell and AMD
 //! Excavator/Zen onwards) executes a copy compiled for those features: wider registers and
-//! three-operand instructions: about 5 % of a dam-break step on the project machine.
+//! three-operand instructions (figures in docs/benchmarks.md). A closure reaches that copy
+//! only when every closure between it and [`hot`] is inlined: a non-inlined adapter leaves
+//! the loop body compiled for the baseline CPU without any error or warning.
 //!
 //! Results are bit-identical either way: Rust never contracts `a * b + c` into a fused
 //! multiply-add nor reorders floating-point sums on its own, so only the instruction

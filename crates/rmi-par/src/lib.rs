@@ -47,9 +47,15 @@ where
     T: Send,
     F: Fn(usize, &mut T) -> [f64; K] + Sync,
 {
-    // A slice of zero-sized values costs nothing to allocate or to walk.
+    // A slice of zero-sized values costs nothing to allocate or to walk. The adapter must be
+    // inlined too, or `f` is compiled as a function of its own for the baseline CPU.
     let mut none = vec![(); out.len()];
-    for_each2_sum(out, &mut none, |i, x, _| f(i, x))
+    for_each2_sum(
+        out,
+        &mut none,
+        #[inline(always)]
+        |i, x, _| f(i, x),
+    )
 }
 
 /// [`for_each_sum`] over two arrays of equal length: `f(i, &mut a[i], &mut b[i])`, same

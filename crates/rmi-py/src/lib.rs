@@ -20,7 +20,7 @@ mod wm;
 
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyTuple};
+use pyo3::types::{PyDict, PyList, PyTuple};
 use rmi_sph::RmiError as CoreError;
 
 /// Same version as the Rust crates (one workspace version) and the Python distribution, which
@@ -107,6 +107,47 @@ fn run_trial<'py>(
     run::run_trial(py, config, errors::threads(num_threads)?, record_every)
 }
 
+/// Runs the scripted trial once per squeeze force from one shared prefix: everything before
+/// the squeeze, which does not depend on the squeeze force, is simulated once, and each
+/// member continues from the saved state where the squeeze begins. Each member's result has
+/// the bits of ``run_trial`` with that squeeze force (the config's own ``squeeze_force`` is
+/// not run), but for its ``outcome["wall_s"]``: the prefix's time split evenly over the
+/// group plus its own squeeze. A trial that ends before the squeeze ends so for every member.
+///
+/// Parameters
+/// ----------
+/// config : dict | str | os.PathLike
+///     Trial configuration (see ``Trial``); perturbed force targets
+///     (``controller.perturbation.enabled``) are refused: they depend on the squeeze force.
+/// squeeze_forces : sequence of float
+///     Squeeze force targets (N, each in [0, ``FORCE_LIMIT_N``]).
+/// num_threads : int, optional
+///     Worker threads (results do not depend on it).
+/// record_every : int, optional
+///     Simulator steps per recorded row (default: the config's ``record_every``, 5).
+///
+/// Returns
+/// -------
+/// list of dict
+///     One ``run_trial`` result per squeeze force, in their order.
+///
+/// Raises
+/// ------
+/// ConfigError, SimulationUnstableError, StateError, KeyboardInterrupt, as ``run_trial``.
+#[pyfunction]
+#[pyo3(signature = (config, squeeze_forces, *, num_threads=None, record_every=None))]
+fn run_squeeze_group<'py>(
+    py: Python<'py>,
+    config: &Bound<'py, PyAny>,
+    squeeze_forces: Vec<f64>,
+    #[pyo3(from_py_with = errors::any_int_opt)] num_threads: Option<i128>,
+    #[pyo3(from_py_with = errors::any_int_opt)] record_every: Option<i128>,
+) -> PyResult<Bound<'py, PyList>> {
+    let record_every =
+        record_every.map(|v| errors::int_arg(v, "record_every", "an integer in [1, 1000000]")).transpose()?;
+    run::run_squeeze_group(py, config, squeeze_forces, errors::threads(num_threads)?, record_every)
+}
+
 /// A trial config (dict) of one of the paper's sponges.
 ///
 /// Parameters
@@ -178,6 +219,7 @@ fn _rmi_sph(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(engine_info, m)?)?;
     m.add_function(wrap_pyfunction!(_raise_error, m)?)?;
     m.add_function(wrap_pyfunction!(run_trial, m)?)?;
+    m.add_function(wrap_pyfunction!(run_squeeze_group, m)?)?;
     m.add_function(wrap_pyfunction!(trial_config, m)?)?;
     m.add_function(wrap_pyfunction!(default_config, m)?)?;
     m.add_function(wrap_pyfunction!(validate_config, m)?)?;

@@ -10,7 +10,9 @@
 //! - [`perturbation`]: seeded force targets from the lift on, for identifiable data;
 //! - [`observe`]: the interaction state `y_t` and the extras recorded beside it;
 //! - [`trial`]: the simulation, pads, contact memory, controller and gate stepped together
-//!   ([`Trial`]), and the scripted trial run to the end ([`run_trial`]).
+//!   ([`Trial`]), and the scripted trial run to the end ([`run_trial`]);
+//! - [`squeeze_group`]: trials that differ only in their squeeze force, run from one shared
+//!   prefix ([`run_squeeze_group`]).
 //!
 //! Friction between pads and sponge (Coulomb with contact memory) is the engine's
 //! [`rmi_sph::contact`]; a trial keeps its [`ContactMemory`](rmi_sph::contact::ContactMemory).
@@ -22,6 +24,8 @@ pub mod gate;
 pub mod gripper;
 pub mod observe;
 pub mod perturbation;
+pub mod squeeze_group;
 pub mod trial;
 
+pub use squeeze_group::run_squeeze_group;
 pub use trial::{run_trial, Trial, TrialConfig};

@@ -459,6 +459,39 @@ impl Trial {
         Ok(&self.layer.obs)
     }
 
+    /// [`Trial::step`] as a recorded run takes it: the observation joins `records` every
+    /// `record_every` steps and at the end (`keep_going` sees it first; `false` stops the run
+    /// with [`RmiError::State`]), and a run past its time limit is an error.
+    pub(crate) fn step_recording<F: FnMut(&Observation) -> bool>(
+        &mut self,
+        records: &mut Vec<Observation>,
+        keep_going: &mut F,
+    ) -> Result<()> {
+        self.step()?;
+        if self.sim.step_count().is_multiple_of(self.cfg.record_every as u64) || self.finished() {
+            let r = self.take_record();
+            if !keep_going(&r) {
+                return Err(RmiError::State(format!("trial interrupted at t = {:.3} s", self.sim.time())));
+            }
+            records.push(r);
+        }
+        let limit = self.cfg.time_limit();
+        if self.sim.time() > limit {
+            return Err(RmiError::State(format!("trial did not finish within its time limit of {limit:.2} s")));
+        }
+        Ok(())
+    }
+
+    /// Sets the squeeze force target (N, in [0, [`FORCE_LIMIT`]]) of a trial that has not yet squeezed:
+    /// nothing before the squeeze depends on it unless the hold is perturbed, whose forces it
+    /// seeds.
+    pub(crate) fn set_squeeze_force(&mut self, force: f64) -> Result<()> {
+        check_range("squeeze_force", force, 0.0, FORCE_LIMIT, "N")?;
+        self.cfg.squeeze_force = force;
+        self.layer.controller.squeeze_force = force;
+        Ok(())
+    }
+
     /// The latest observation with the pad loads averaged over the steps since the previous
     /// call (the instantaneous loads alternate by a few per cent from step to step); starts
     /// a new averaging interval.
@@ -588,22 +621,10 @@ pub fn run_trial_with<F: FnMut(&Observation) -> bool>(
     mut keep_going: F,
 ) -> Result<TrialResult> {
     let start = std::time::Instant::now();
-    let every = cfg.record_every as u64;
-    let limit = cfg.time_limit();
     let mut t = Trial::new(cfg, threads)?;
     let mut records = vec![t.take_record()];
     while !t.finished() {
-        t.step()?;
-        if t.sim.step_count() % every == 0 || t.finished() {
-            let r = t.take_record();
-            if !keep_going(&r) {
-                return Err(RmiError::State(format!("trial interrupted at t = {:.3} s", t.sim.time())));
-            }
-            records.push(r);
-        }
-        if t.sim.time() > limit {
-            return Err(RmiError::State(format!("trial did not finish within its time limit of {limit:.2} s")));
-        }
+        t.step_recording(&mut records, &mut keep_going)?;
     }
     Ok(TrialResult { outcome: t.outcome(start.elapsed().as_secs_f64()), records })
 }

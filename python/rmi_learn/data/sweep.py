@@ -23,7 +23,10 @@ The runner is injectable: ``runner(config: dict, *, num_threads: int) -> {"colum
 "outcome"}`` and ``make_config(size_cm, porosity, hold_force, squeeze_force, radius, seed,
 **overrides) -> dict``; the defaults are ``rmi_sph.run_trial`` and ``rmi_sph.trial_config``.
 They must be picklable (module-level functions), or ``"module:function"`` strings, because
-local workers are spawned processes (fork and the engine's rayon pools do not mix).
+local workers are spawned processes (fork and the engine's rayon pools do not mix). With the
+default runner, the runs that differ only in their squeeze force are one job each, run from
+one shared prefix (:func:`prefix_groups`, :func:`compute_group`); an injected runner runs
+every trial alone.
 """
 
 from __future__ import annotations
@@ -425,30 +428,20 @@ def compute_run(
     try:
         run = _resolve(runner, "rmi_sph:run_trial")
         result = run(config, num_threads=threads_per_run)
-        wall = time.perf_counter() - t0
-        outcome = dict(result["outcome"])
-        outcome.setdefault("wall_s", wall)  # the engine's own figure wins when given
-        outcome["sweep_wall_s"] = wall  # the runner as this worker saw it
-        data = run_file_bytes(result["columns"], config, spec.params, outcome)
+        return _packaged(spec, config, result, time.perf_counter() - t0)
     except Exception as exc:  # noqa: BLE001 - recorded, the sweep goes on
-        wall = time.perf_counter() - t0
-        status = "failed" if isinstance(exc, RunFileError) else _status_of_exception(exc)
-        error = f"{type(exc).__name__}: {exc}"
-        record = {
-            "status": status,
-            "error": error,
-            "traceback": traceback.format_exc(),
-            "wall_s": wall,
-            "config": config,
-        }
-        return {
-            "run_id": spec.run_id,
-            "status": status,
-            "wall_s": wall,
-            "error": error,
-            "data": None,
-            "record": record,
-        }
+        return _failure(spec, config, exc, time.perf_counter() - t0)
+
+
+def _packaged(
+    spec: RunSpec, config: dict[str, Any], result: Mapping[str, Any], wall: float
+) -> dict[str, Any]:
+    """A runner's result as :func:`compute_run` returns it; ``wall`` (s) is the runner's time
+    as this worker saw it. Raises what :func:`run_file_bytes` raises."""
+    outcome = dict(result["outcome"])
+    outcome.setdefault("wall_s", wall)  # the engine's own figure wins when given
+    outcome["sweep_wall_s"] = wall
+    data = run_file_bytes(result["columns"], config, spec.params, outcome)
     return {
         "run_id": spec.run_id,
         "status": "ok",
@@ -457,6 +450,81 @@ def compute_run(
         "data": data,
         "record": None,
     }
+
+
+def _failure(spec: RunSpec, config: dict[str, Any], exc: Exception, wall: float) -> dict[str, Any]:
+    """The :func:`compute_run` result of a run that raised ``exc`` (call it in the handler)."""
+    status = "failed" if isinstance(exc, RunFileError) else _status_of_exception(exc)
+    error = f"{type(exc).__name__}: {exc}"
+    record = {
+        "status": status,
+        "error": error,
+        "traceback": traceback.format_exc(),
+        "wall_s": wall,
+        "config": config,
+    }
+    return {
+        "run_id": spec.run_id,
+        "status": status,
+        "wall_s": wall,
+        "error": error,
+        "data": None,
+        "record": record,
+    }
+
+
+def prefix_groups(
+    specs: list[RunSpec], configs: Mapping[str, dict[str, Any]], runner: Any = None
+) -> list[list[RunSpec]]:
+    """``specs`` grouped by the trial they share up to the squeeze: the same config but for
+    ``squeeze_force`` (grid order kept within and between groups). Nothing before the
+    squeeze depends on the squeeze force, so the engine runs such a group from one shared
+    prefix (:func:`compute_group`). Runs with perturbed force targets (which depend on the
+    squeeze force) and runs of an injected ``runner`` stay alone."""
+    if runner is not None:
+        return [[s] for s in specs]
+    groups: dict[str, list[RunSpec]] = {}
+    for s in specs:
+        config = configs[s.run_id]
+        perturbed = config.get("controller", {}).get("perturbation", {}).get("enabled", False)
+        shared = json.dumps({**config, "squeeze_force": None}, sort_keys=True)
+        key = s.run_id if perturbed else shared
+        groups.setdefault(key, []).append(s)
+    return list(groups.values())
+
+
+def compute_group(
+    specs: list[RunSpec],
+    configs: list[dict[str, Any]],
+    runner: Any = None,
+    threads_per_run: int = 1,
+) -> list[dict[str, Any]]:
+    """:func:`compute_run` for each run of a :func:`prefix_groups` group, in its order. Two or
+    more runs go through ``rmi_sph.run_squeeze_group`` (each result has the bits of its own
+    trial; its ``wall_s`` is the shared prefix's time split evenly plus its own squeeze, and
+    ``sweep_wall_s`` the group's wall time split evenly). If the group raises (a member's
+    trial failed), each run is computed on its own, so that every failure is recorded as it
+    happens when run alone."""
+    if len(specs) == 1:
+        return [compute_run(specs[0], configs[0], runner, threads_per_run)]
+    import rmi_sph
+
+    t0 = time.perf_counter()
+    try:
+        forces = [float(c["squeeze_force"]) for c in configs]
+        results = rmi_sph.run_squeeze_group(configs[0], forces, num_threads=threads_per_run)
+    except Exception:  # noqa: BLE001 - each member is rerun and its own error recorded
+        return [
+            compute_run(s, c, runner, threads_per_run) for s, c in zip(specs, configs, strict=True)
+        ]
+    wall = (time.perf_counter() - t0) / len(specs)
+    out = []
+    for spec, config, result in zip(specs, configs, results, strict=True):
+        try:
+            out.append(_packaged(spec, config, result, wall))
+        except Exception as exc:  # noqa: BLE001 - recorded, the sweep goes on
+            out.append(_failure(spec, config, exc, wall))
+    return out
 
 
 def store_run(result: Mapping[str, Any], spec: RunSpec, runs_root: str | Path) -> dict[str, Any]:
@@ -493,6 +561,32 @@ def execute_run(
     if is_done(run_path(runs_root, spec.params).parent, retry_failed):
         return {"run_id": spec.run_id, "status": "skipped", "wall_s": 0.0, "error": None}
     return store_run(compute_run(spec, config, runner, threads_per_run), spec, runs_root)
+
+
+def execute_group(
+    specs: list[RunSpec],
+    configs: list[dict[str, Any]],
+    runs_root: str,
+    runner: Any = None,
+    threads_per_run: int = 1,
+    retry_failed: bool = False,
+) -> list[dict[str, Any]]:
+    """:func:`execute_run` for a :func:`prefix_groups` group: the runs not yet done are
+    computed together (:func:`compute_group`) and stored one by one."""
+    todo = [
+        (s, c)
+        for s, c in zip(specs, configs, strict=True)
+        if not is_done(run_path(runs_root, s.params).parent, retry_failed)
+    ]
+    done = [
+        {"run_id": s.run_id, "status": "skipped", "wall_s": 0.0, "error": None}
+        for s in specs
+        if all(s is not t for t, _ in todo)
+    ]
+    if not todo:
+        return done
+    results = compute_group([s for s, _ in todo], [c for _, c in todo], runner, threads_per_run)
+    return done + [store_run(r, s, runs_root) for r, (s, _) in zip(results, todo, strict=True)]
 
 
 # --------------------------------------------------------------------------------------
@@ -759,6 +853,7 @@ def _sweep_locked(
     pending = longest_first(
         [s for s in specs if not is_done(run_path(runs_root, s.params).parent, retry_failed)]
     )
+    groups = prefix_groups(pending, configs, runner)
     counts = {"ok": 0, "failed": 0, "unstable": 0}
     t0 = time.perf_counter()
 
@@ -789,12 +884,13 @@ def _sweep_locked(
         elif backend == "local":
             n = workers if workers is not None else max(1, (os.cpu_count() or 1) // threads_per_run)
             if n <= 0:
-                for s in pending:
-                    record(execute_run(s, configs[s.run_id], *args))
+                for g in groups:
+                    for res in execute_group(g, [configs[s.run_id] for s in g], *args):
+                        record(res)
             else:
-                _run_local(pending, configs, args, n, record)
+                _run_local(groups, configs, args, n, record)
         elif backend == "ray":
-            _run_ray(pending, configs, args, threads_per_run, workers, record)
+            _run_ray(groups, configs, args, threads_per_run, workers, record)
         else:
             raise ValueError(f"unknown backend {backend!r} (local or ray)")
     finally:
@@ -825,39 +921,51 @@ def longest_first(specs: list[RunSpec]) -> list[RunSpec]:
     return sorted(specs, key=lambda s: -particles(s))
 
 
+def _record_lost(
+    group: list[RunSpec], runs_root: str, err: str, record: Callable[[Any], None]
+) -> None:
+    """Records every run of ``group`` whose run file is missing as failed with ``err``."""
+    for spec in group:
+        path = run_path(runs_root, spec.params)
+        if path.exists():
+            continue
+        write_error(path.parent, spec.params, {"status": "failed", "error": err, "wall_s": None})
+        record({"run_id": spec.run_id, "status": "failed", "error": err})
+
+
 def _run_local(
-    pending: list[RunSpec],
+    groups: list[list[RunSpec]],
     configs: Mapping[str, dict[str, Any]],
     args: tuple[Any, ...],
     workers: int,
     record: Callable[[Any], None],
 ) -> None:
-    """Process pool with spawn. A worker that dies (e.g. a crash in native code) breaks the
-    pool; its runs are retried in a fresh pool, and a run that breaks it twice is recorded
-    as failed."""
+    """Process pool with spawn, one task per :func:`prefix_groups` group. A worker that dies
+    (e.g. a crash in native code) breaks the pool; its group's unfinished runs are retried
+    in a fresh pool, and a group that breaks it twice has them recorded as failed."""
     ctx = multiprocessing.get_context("spawn")
     attempts: dict[str, int] = {}
-    todo = list(pending)
+    todo = list(groups)
     while todo:
-        retry: list[RunSpec] = []
+        retry: list[list[RunSpec]] = []
         with cf.ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=ctx) as pool:
-            futures = {pool.submit(execute_run, s, configs[s.run_id], *args): s for s in todo}
+            futures = {
+                pool.submit(execute_group, g, [configs[s.run_id] for s in g], *args): g
+                for g in todo
+            }
             for fut in cf.as_completed(futures):
-                spec = futures[fut]
+                group = futures[fut]
                 try:
-                    record(fut.result())
+                    for res in fut.result():
+                        record(res)
                 except cf.process.BrokenProcessPool:
-                    attempts[spec.run_id] = attempts.get(spec.run_id, 0) + 1
-                    if attempts[spec.run_id] >= 2:
+                    key = group[0].run_id
+                    attempts[key] = attempts.get(key, 0) + 1
+                    if attempts[key] >= 2:
                         err = "worker process died twice while running this trial"
-                        write_error(
-                            run_path(args[0], spec.params).parent,
-                            spec.params,
-                            {"status": "failed", "error": err, "wall_s": None},
-                        )
-                        record({"run_id": spec.run_id, "status": "failed", "error": err})
+                        _record_lost(group, args[0], err, record)
                     else:
-                        retry.append(spec)
+                        retry.append(group)
         todo = retry
 
 
@@ -872,18 +980,19 @@ def _import_ray() -> Any:
 
 
 def _run_ray(
-    pending: list[RunSpec],
+    groups: list[list[RunSpec]],
     configs: Mapping[str, dict[str, Any]],
     args: tuple[Any, ...],
     threads_per_run: int,
     workers: int | None,
     record: Callable[[Any], None],
 ) -> None:
-    """One Ray task per run (``num_cpus=threads_per_run``); ``ray.init()`` locally or on the
-    cluster of ``$RAY_ADDRESS`` unless Ray is already initialised. A task returns its run
-    file's bytes (:func:`compute_run`) and this process writes them (:func:`store_run`), so
-    the runs and the index land on the driver's disk whichever node ran them. A task whose
-    node is lost is retried once on another node (Ray's ``max_retries``)."""
+    """One Ray task per :func:`prefix_groups` group (``num_cpus=threads_per_run``);
+    ``ray.init()`` locally or on the cluster of ``$RAY_ADDRESS`` unless Ray is already
+    initialised. A task returns its runs' file bytes (:func:`compute_group`) and this process
+    writes them (:func:`store_run`), so the runs and the index land on the driver's disk
+    whichever node ran them. A task whose node is lost is retried once on another node
+    (Ray's ``max_retries``)."""
     ray = _import_ray()
     started_here = False
     if not ray.is_initialized():
@@ -901,25 +1010,24 @@ def _run_ray(
         started_here = True
     try:
         runs_root, runner, _, _ = args
-        remote = ray.remote(num_cpus=threads_per_run, max_retries=1)(compute_run)
-        refs = {remote.remote(s, configs[s.run_id], runner, threads_per_run): s for s in pending}
+        remote = ray.remote(num_cpus=threads_per_run, max_retries=1)(compute_group)
+        refs = {
+            remote.remote(g, [configs[s.run_id] for s in g], runner, threads_per_run): g
+            for g in groups
+        }
         waiting = list(refs)
         while waiting:
             done, waiting = ray.wait(waiting, num_returns=1)
             for ref in done:
-                spec = refs[ref]
+                group = refs[ref]
                 try:
-                    result = ray.get(ref)
+                    results = ray.get(ref)
                 except Exception as exc:  # noqa: BLE001 - a lost worker, not a runner error
                     err = f"ray task failed: {type(exc).__name__}: {exc}"
-                    write_error(
-                        run_path(args[0], spec.params).parent,
-                        spec.params,
-                        {"status": "failed", "error": err, "wall_s": None},
-                    )
-                    record({"run_id": spec.run_id, "status": "failed", "error": err})
+                    _record_lost(group, runs_root, err, record)
                 else:
-                    record(store_run(result, spec, runs_root))
+                    for spec, result in zip(group, results, strict=True):
+                        record(store_run(result, spec, runs_root))
     finally:
         if started_here:
             ray.shutdown()

@@ -156,6 +156,17 @@ impl Simulation {
     /// current state and hands it to `f`, without stepping.
     #[cfg(test)]
     pub(crate) fn with_operator<R>(&mut self, f: impl FnOnce(&implicit::Op) -> R) -> R {
+        self.with_operator_from(|_| {}, |op| f(op))
+    }
+
+    /// [`Simulation::with_operator`] with the detected contact constraints passed through
+    /// `edit` first (e.g. to make them sticks), and the operator handed over mutable.
+    #[cfg(test)]
+    pub(crate) fn with_operator_from<R>(
+        &mut self,
+        edit: impl FnOnce(&mut Vec<implicit::VelocityConstraint>),
+        f: impl FnOnce(&mut implicit::Op) -> R,
+    ) -> R {
         self.build_neighbours();
         let cfg = &self.cfg;
         let ctx = Ctx::new(&self.p, &self.nb, &self.nbb, &self.bnd, &self.objects, &self.rest, &self.kernel, cfg);
@@ -165,9 +176,10 @@ impl Simulation {
         let nps = nonpressure_settings(cfg);
         let detected =
             contact::detect(&self.p, &self.nbb, &self.bnd, cfg.particle_radius, cfg.dt, &self.contact_load, None);
-        let cons: Vec<_> = detected.iter().map(|d| d.0).collect();
-        let op = implicit::Op::new(&ctx, &self.dens, &self.ef, &nps, cons);
-        f(&op)
+        let mut cons: Vec<_> = detected.iter().map(|d| d.0).collect();
+        edit(&mut cons);
+        let mut op = implicit::Op::new(&ctx, &self.dens, &self.ef, &nps, cons);
+        f(&mut op)
     }
 
     pub(super) fn build_neighbours(&mut self) {

@@ -29,21 +29,26 @@ pub fn rotations(c: &Ctx, rot: &mut [UnitQuaternion<f64>]) {
     let nf = c.p.n_fluid;
     let x = &c.p.x;
     let rest = c.rest;
-    rot.par_iter_mut().enumerate().for_each(|(s, q)| {
-        let a = nf + s;
-        let mut f = Matrix3::zeros();
-        for e in rest.start[s] as usize..rest.start[s + 1] as usize {
-            let r = rest.nbr[e] as usize;
-            f += rest.v0[r - nf] * (x[r] - x[a]) * (rest.l[s] * rest.grad0[e]).transpose();
-        }
-        *q = extract_rotation(&f, *q, 10);
-    });
+    rmi_par::for_each_hot(
+        rot,
+        #[inline(always)]
+        |s, q| {
+            let a = nf + s;
+            let mut f = Matrix3::zeros();
+            for e in rest.start[s] as usize..rest.start[s + 1] as usize {
+                let r = rest.nbr[e] as usize;
+                f += rest.v0[r - nf] * (x[r] - x[a]) * (rest.l[s] * rest.grad0[e]).transpose();
+            }
+            *q = extract_rotation(&f, *q, 10);
+        },
+    );
 }
 
 /// Volume ratio `J = det F` of skeleton particle `s` (solid index) at positions `x` (by
 /// dynamic index; `nf` fluid particles first), with `F = sum_r V_r0 (x_r - x_s) (x) L_s grad
 /// W0_sr` the corrected deformation gradient: exact for affine motion, at faces too, where
 /// kernel sums are truncated.
+#[inline]
 pub fn volume_ratio(rest: &SolidRest, x: &[Vector3<f64>], nf: usize, s: usize) -> f64 {
     let mut f = Matrix3::zeros();
     for e in rest.start[s] as usize..rest.start[s + 1] as usize {
@@ -54,6 +59,7 @@ pub fn volume_ratio(rest: &SolidRest, x: &[Vector3<f64>], nf: usize, s: usize) -
 }
 
 /// Iterative rotation extraction from a deformation matrix, starting at `q`.
+#[inline]
 pub fn extract_rotation(a: &Matrix3<f64>, mut q: UnitQuaternion<f64>, iterations: usize) -> UnitQuaternion<f64> {
     for _ in 0..iterations {
         let r = q.to_rotation_matrix();
@@ -103,24 +109,29 @@ pub fn prepare(c: &Ctx, rot: &[UnitQuaternion<f64>], saturation: &[f64], out: &m
     let rows: Vec<Row> = (0..ns)
         .into_par_iter()
         .map(|s| {
-            let a = nf + s;
-            let rs = rot[s].to_rotation_matrix();
-            let mut grad = Matrix3::zeros();
-            let mut gsum = Vector3::zeros();
-            let mut ftil = Matrix3::zeros();
-            for e in rest.start[s] as usize..rest.start[s + 1] as usize {
-                let r = rest.nbr[e] as usize;
-                ftil += rest.v0[r - nf] * (x[r] - x[a]) * (rest.l[s] * rest.grad0[e]).transpose();
-                let g = rl[s] * rest.grad0[e];
-                let u = (x[r] - x[a]) - rs * (rest.x0[r - nf] - rest.x0[s]);
-                grad += rest.v0[r - nf] * u * g.transpose();
-                gsum += rest.v0[r - nf] * g;
-            }
-            let sat = saturation[a];
-            let (mu, lam) = moduli(c, a, sat);
-            let o = c.object(a);
-            let bloat = o.lambda * o.material.bloating * sat;
-            (stress(&grad, mu, lam, bloat) * rl[s], gsum, ftil, (mu, lam))
+            rmi_par::cpu::hot(
+                #[inline(always)]
+                || {
+                    let a = nf + s;
+                    let rs = rot[s].to_rotation_matrix();
+                    let mut grad = Matrix3::zeros();
+                    let mut gsum = Vector3::zeros();
+                    let mut ftil = Matrix3::zeros();
+                    for e in rest.start[s] as usize..rest.start[s + 1] as usize {
+                        let r = rest.nbr[e] as usize;
+                        ftil += rest.v0[r - nf] * (x[r] - x[a]) * (rest.l[s] * rest.grad0[e]).transpose();
+                        let g = rl[s] * rest.grad0[e];
+                        let u = (x[r] - x[a]) - rs * (rest.x0[r - nf] - rest.x0[s]);
+                        grad += rest.v0[r - nf] * u * g.transpose();
+                        gsum += rest.v0[r - nf] * g;
+                    }
+                    let sat = saturation[a];
+                    let (mu, lam) = moduli(c, a, sat);
+                    let o = c.object(a);
+                    let bloat = o.lambda * o.material.bloating * sat;
+                    (stress(&grad, mu, lam, bloat) * rl[s], gsum, ftil, (mu, lam))
+                },
+            )
         })
         .collect();
     out.prl.clear();

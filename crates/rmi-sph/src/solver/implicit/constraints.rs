@@ -63,15 +63,6 @@ impl Filter {
             Filter::Full => *x = Vector3::zeros(),
         }
     }
-
-    /// The filter as a matrix: `I - n n^T`, zero, or the identity where free.
-    pub(super) fn matrix(&self) -> Matrix3<f64> {
-        match self {
-            Filter::Free => Matrix3::identity(),
-            Filter::Normal(n) => Matrix3::identity() - n * n.transpose(),
-            Filter::Full => Matrix3::zeros(),
-        }
-    }
 }
 
 /// Per-particle filters of the constraints.

@@ -84,14 +84,18 @@ pub(super) fn diagonal_block(c: &Ctx, ef: &ElasticFields, s: usize) -> Matrix3<f
 pub(super) fn coarse_strain(c: &Ctx, ef: &ElasticFields, agg: &[u32]) -> BlockRows<Vector3<f64>> {
     let nf = c.p.n_fluid;
     let rest = c.rest;
-    BlockRows::build(c.p.n_solid(), |s, b| {
-        for e in rest.start[s] as usize..rest.start[s + 1] as usize {
-            let r = rest.nbr[e] as usize;
-            b.add(agg[r], rest.v0[r - nf] * rest.grad0[e]);
-        }
-        b.add(agg[nf + s], -rest.grad0_sum[s]);
-        b.map(|g| ef.rl[s] * g);
-    })
+    BlockRows::build(
+        c.p.n_solid(),
+        #[inline(always)]
+        |s, b| {
+            for e in rest.start[s] as usize..rest.start[s + 1] as usize {
+                let r = rest.nbr[e] as usize;
+                b.add(agg[r], rest.v0[r - nf] * rest.grad0[e]);
+            }
+            b.add(agg[nf + s], -rest.grad0_sum[s]);
+            b.map(|g| ef.rl[s] * g);
+        },
+    )
 }
 
 /// The 3x3 block `[P_x R L v, P_y R L v, P_z R L v]` of the stress term `P(eps) R L` applied

@@ -33,29 +33,33 @@ pub fn solve(
     // Right-hand side m v + dt (F_exp + m g).
     {
         let vv: &[Vector3<f64>] = v;
-        w.b.par_iter_mut().enumerate().for_each(|(a, b)| {
-            let m = c.p.mass[a];
-            if a >= nf && c.rest.fixed[a - nf] {
-                *b = m * vv[a];
-                return;
-            }
-            let nb = c.nb.of(a);
-            let mut f = m * gravity + op.adhesion_position_force(a);
-            if a < nf {
-                if op.implicit_visc && s.boundary_viscosity > 0.0 {
-                    f += op.boundary_visc(a, Vector3::zeros(), true);
+        rmi_par::for_each_hot(
+            &mut w.b,
+            #[inline(always)]
+            |a, b| {
+                let m = c.p.mass[a];
+                if a >= nf && c.rest.fixed[a - nf] {
+                    *b = m * vv[a];
+                    return;
                 }
-            } else {
-                let phi = c.object(a).material.porosity;
-                for k in 0..nb.n_fluid {
-                    let i = nb.j[k] as usize;
-                    // Buoyancy: reaction of the fluid-side skeleton pressure term (lagged).
-                    f -= ((1.0 - phi) * c.vol * c.p.mass[i] * kappa_prev[i]) * nb.g(k);
+                let nb = c.nb.of(a);
+                let mut f = m * gravity + op.adhesion_position_force(a);
+                if a < nf {
+                    if op.implicit_visc && s.boundary_viscosity > 0.0 {
+                        f += op.boundary_visc(a, Vector3::zeros(), true);
+                    }
+                } else {
+                    let phi = c.object(a).material.porosity;
+                    for k in 0..nb.n_fluid {
+                        let i = nb.j[k] as usize;
+                        // Buoyancy: reaction of the fluid-side skeleton pressure term (lagged).
+                        f -= ((1.0 - phi) * c.vol * c.p.mass[i] * kappa_prev[i]) * nb.g(k);
+                    }
+                    f += elasticity::force(c, a - nf, &ef.prl) + hourglass_force(c, ef, a - nf);
                 }
-                f += elasticity::force(c, a - nf, &ef.prl) + hourglass_force(c, ef, a - nf);
-            }
-            *b = m * vv[a] + c.dt * f;
-        });
+                *b = m * vv[a] + c.dt * f;
+            },
+        );
     }
     // Initial guess: warm start, with constrained normal components set to their targets.
     let mut x: Vec<Vector3<f64>> = (0..n).map(|a| if s.warm_start { v[a] + dv_prev[a] } else { v[a] }).collect();

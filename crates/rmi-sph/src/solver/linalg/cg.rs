@@ -78,10 +78,12 @@ pub(crate) fn pcg<S: System>(
     let rhs_norm = dot(&bf, &bf).sqrt();
     let bnorm = rhs_norm.max(rhs_floor).max(1e-300);
     if let Some(tl) = op.coarse() {
-        // x += Z c, r -= A Z c with c = E^-1 Z^T r (the rows of A Z are filtered already).
+        // x += Z c, r -= A Z c with c = E^-1 Z^T r; A Z is stored unfiltered, so the residual
+        // is filtered again (Z is zero on constrained particles: x needs no filter).
         let c0 = tl.coarse_correction(&w.r, None);
         x.par_iter_mut().enumerate().for_each(|(a, xa)| *xa += tl.prolong(a, &c0));
         tl.subtract_az(&c0, &mut w.r);
+        op.filter(&mut w.r);
     }
     // Given y = M^-1 r and r . y: adds the coarse correction to y (Z is zero on constrained
     // particles, so it needs no filter of its own) and returns r . z.

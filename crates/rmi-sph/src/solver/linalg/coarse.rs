@@ -106,7 +106,8 @@ impl<T> Default for BlockRows<T> {
 
 impl<T: Copy + AddAssign + Send + Sync> BlockRows<T> {
     /// Builds the rows of particles `0..n` in parallel: `row(a, out)` pushes particle `a`'s
-    /// blocks into `out` (a column may repeat; repeats are summed in push order).
+    /// blocks into `out` (a column may repeat; repeats are summed in push order). Each chunk
+    /// runs through [`rmi_par::cpu::hot`]: pass `row` marked `#[inline(always)]`.
     pub fn build<F>(n: usize, row: F) -> BlockRows<T>
     where
         F: Fn(usize, &mut RowBuilder<T>) + Sync,
@@ -116,15 +117,19 @@ impl<T: Copy + AddAssign + Send + Sync> BlockRows<T> {
             .into_par_iter()
             .map(|c| {
                 let mut out = BlockRows::default();
-                let mut b = RowBuilder { cols: Vec::new(), blks: Vec::new() };
-                for a in c * CHUNK..((c + 1) * CHUNK).min(n) {
-                    b.cols.clear();
-                    b.blks.clear();
-                    row(a, &mut b);
-                    out.col.extend_from_slice(&b.cols);
-                    out.blk.extend_from_slice(&b.blks);
-                    out.start.push(out.col.len() as u32);
-                }
+                let mut b = RowBuilder::new();
+                rmi_par::cpu::hot(
+                    #[inline(always)]
+                    || {
+                        for a in c * CHUNK..((c + 1) * CHUNK).min(n) {
+                            b.clear();
+                            row(a, &mut b);
+                            out.col.extend_from_slice(&b.cols);
+                            out.blk.extend_from_slice(&b.blks);
+                            out.start.push(out.col.len() as u32);
+                        }
+                    },
+                );
                 out
             })
             .collect();
@@ -164,26 +169,47 @@ impl<T: Copy + AddAssign + Send + Sync> BlockRows<T> {
 }
 
 /// One row under construction: blocks summed per column, in order of first appearance.
-/// Columns and blocks are kept apart so that the column search scans a few packed integers.
+/// `slot` maps a column to its place in the row ([`NONE`] when absent), so that adding a
+/// block is a lookup rather than a scan of the row; [`RowBuilder::clear`] resets only the
+/// entries the row used.
 pub struct RowBuilder<T = Matrix3<f64>> {
     cols: Vec<u32>,
     blks: Vec<T>,
+    slot: Vec<u32>,
 }
 
 impl<T: Copy + AddAssign> RowBuilder<T> {
+    fn new() -> Self {
+        RowBuilder { cols: Vec::new(), blks: Vec::new(), slot: Vec::new() }
+    }
+
     /// Adds `m` to the block of column `j` ([`NONE`] columns are ignored).
     #[inline(always)]
     pub fn add(&mut self, j: u32, m: T) {
         if j == NONE {
             return;
         }
-        match self.cols.iter().position(|&c| c == j) {
-            Some(k) => self.blks[k] += m,
-            None => {
+        let ju = j as usize;
+        if ju >= self.slot.len() {
+            self.slot.resize(ju + 1, NONE);
+        }
+        match self.slot[ju] {
+            NONE => {
+                self.slot[ju] = self.cols.len() as u32;
                 self.cols.push(j);
                 self.blks.push(m);
             }
+            k => self.blks[k as usize] += m,
         }
+    }
+
+    /// Empties the row, keeping its buffers.
+    fn clear(&mut self) {
+        for &c in &self.cols {
+            self.slot[c as usize] = NONE;
+        }
+        self.cols.clear();
+        self.blks.clear();
     }
 
     /// Replaces every block `m` by `f(m)`.
@@ -205,8 +231,9 @@ pub struct TwoLevel {
 }
 
 impl TwoLevel {
-    /// Assembles `E = Z^T A Z` from the rows of `A Z` (filtered by the constraints; `Z` is the
-    /// identity on an aggregate's members) and factors it.
+    /// Assembles `E = Z^T A Z` from the rows of `A Z` (unfiltered: `Z` is zero on constrained
+    /// particles and the identity on an aggregate's members, so `E` needs no filter) and
+    /// factors it.
     pub fn new(agg: Aggregates, az: BlockRows) -> TwoLevel {
         let nagg = agg.len();
         let azt = az.transpose(nagg);
@@ -214,7 +241,7 @@ impl TwoLevel {
         let rows: Vec<Vec<(u32, Matrix3<f64>)>> = (0..nagg)
             .into_par_iter()
             .map(|i| {
-                let mut b = RowBuilder { cols: Vec::new(), blks: Vec::new() };
+                let mut b = RowBuilder::new();
                 for &a in agg.members(i) {
                     for (j, m) in az.row(a as usize) {
                         b.add(j, *m);
@@ -252,7 +279,8 @@ impl TwoLevel {
         self.azt.row(j)
     }
 
-    /// `E^-1 (Z^T r - (A Z)^T y)`; `r` already filtered (so `Z^T r` is a sum over members).
+    /// `E^-1 (Z^T r - (A Z)^T y)`; `r` already filtered (so `Z^T r` is a sum over members) and
+    /// `y` too (so the unfiltered rows of `A Z` give the filtered operator's `(S A Z)^T y`).
     pub fn coarse_correction(&self, r: &[Vector3<f64>], y: Option<&[Vector3<f64>]>) -> Vec<f64> {
         let g: Vec<[f64; 3]> = (0..self.agg.len())
             .into_par_iter()
@@ -274,7 +302,8 @@ impl TwoLevel {
         g
     }
 
-    /// `r -= A Z c`, column by column in a fixed order (a scatter, so sequential).
+    /// `r -= A Z c`, column by column in a fixed order (a scatter, so sequential); the rows are
+    /// unfiltered, so the caller filters `r` afterwards.
     pub fn subtract_az(&self, c: &[f64], r: &mut [Vector3<f64>]) {
         for j in 0..self.agg.len() {
             let cj = Vector3::new(c[3 * j], c[3 * j + 1], c[3 * j + 2]);
