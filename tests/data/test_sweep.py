@@ -30,10 +30,12 @@ from rmi_learn.data.sweep import (
     RUNS_SUBDIR,
     RunSpec,
     build_index,
+    compute_group,
     estimate_wall_time,
     expand_grid,
     load_grid,
     longest_first,
+    prefix_groups,
     run_sweep,
     validate_grid,
 )
@@ -227,6 +229,46 @@ def test_longest_first_starts_the_largest_sponges_and_keeps_grid_order_among_equ
 
 
 # ---- local sweep ---------------------------------------------------------------------------
+
+
+def test_prefix_groups_and_a_failing_group_falls_back_to_runs_alone(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import rmi_sph
+
+    specs = expand_grid(grid(hold_forces_N=[30], squeeze_forces_N=[150, UNSTABLE_SQUEEZE]))
+    configs = {s.run_id: fake_make_config(**_trial_args(s)) for s in specs}
+    groups = prefix_groups(specs, configs)
+    assert [len(g) for g in groups] == [2, 2, 2, 2]  # 2 sizes x 2 porosities
+    assert all(len(g) == 1 for g in prefix_groups(specs, configs, runner=fake_runner))
+    perturbed = {
+        k: {**c, "controller": {"perturbation": {"enabled": True}}} for k, c in configs.items()
+    }
+    assert all(len(g) == 1 for g in prefix_groups(specs, perturbed))
+
+    # A member that fails makes the group raise: each run is then computed alone, and only
+    # the failing one is recorded as failing.
+    def group_raises(*_: Any, **__: Any) -> Any:
+        raise SimulationUnstableError("velocity blew up in a member's squeeze")
+
+    monkeypatch.setattr(rmi_sph, "run_squeeze_group", group_raises)
+    monkeypatch.setattr(rmi_sph, "run_trial", fake_runner)
+    g = groups[0]
+    results = compute_group(g, [configs[s.run_id] for s in g])
+    assert [r["run_id"] for r in results] == [s.run_id for s in g]
+    assert [r["status"] for r in results] == ["ok", "unstable"]
+
+
+def _trial_args(spec: RunSpec) -> dict[str, Any]:
+    p = spec.params
+    return {
+        "size_cm": p["size_cm"],
+        "porosity": p["porosity"],
+        "hold_force": p["F_hold"],
+        "squeeze_force": p["F_squeeze"],
+        "radius": spec.radius,
+        "seed": p["seed"],
+    }
 
 
 def test_local_sweep_records_failures_skips_done_and_indexes(tmp_path: Path) -> None:

@@ -7,9 +7,10 @@
 //! continues each member from it: every member's result has the bits of its own
 //! [`run_trial`](crate::trial::run_trial), at the cost of one prefix for the group.
 
-use crate::controller::Phase;
+use crate::controller::{Phase, FORCE_LIMIT};
 use crate::observe::Observation;
 use crate::trial::{Trial, TrialConfig, TrialResult};
+use rmi_sph::config::check_range;
 use rmi_sph::{Result, RmiError};
 use std::time::Instant;
 
@@ -45,13 +46,13 @@ pub fn run_squeeze_group_with<F: FnMut(&Observation) -> bool>(
             "false: perturbed targets depend on the squeeze force from the lift on; run each trial on its own",
         ));
     }
+    // Every force is checked before the scene is built and soaked.
+    for &f in squeeze_forces {
+        check_range("squeeze_force", f, 0.0, FORCE_LIMIT, "N")?;
+    }
     let n = squeeze_forces.len() as f64;
     let start = Instant::now();
     let mut t = Trial::new(TrialConfig { squeeze_force: first, ..cfg }, threads)?;
-    for &f in squeeze_forces {
-        t.set_squeeze_force(f)?;
-    }
-    t.set_squeeze_force(first)?;
     let mut records = vec![t.take_record()];
     while !t.finished() && t.phase() != Phase::Squeeze {
         t.step_recording(&mut records, &mut keep_going)?;
