@@ -80,21 +80,22 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"the sample has no finished run of size {missing} cm")
         if any(w < 1 for w in a.workers):
             raise ValueError("--workers: expected integers >= 1")
+        groups = prefix_groups(specs, _configs_of(specs, None))
+        sample_grid = Path(a.sample) / "grid.json"
+        forces = None
+        if sample_grid.is_file():
+            forces = json.loads(sample_grid.read_text()).get("squeeze_forces_N")
     except (OSError, ValueError) as exc:
         print(f"grid_time: {exc}", file=sys.stderr)
         return 2
-    groups = prefix_groups(specs, _configs_of(specs, None))
     jobs = [sum(per_size[s.params["size_cm"]] for s in g) for g in groups]
-    sample_grid = Path(a.sample) / "grid.json"
-    if sample_grid.is_file():
-        forces = json.loads(sample_grid.read_text()).get("squeeze_forces_N")
-        if forces is not None and sorted(forces) != sorted(grid["squeeze_forces_N"]):
-            print(
-                f"grid_time: the sample's squeeze forces {forces} are not the grid's "
-                f"{grid['squeeze_forces_N']}: its runs share their prefixes differently, so the "
-                "per-run times are only approximate",
-                file=sys.stderr,
-            )
+    if forces is not None and sorted(forces) != sorted(grid["squeeze_forces_N"]):
+        print(
+            f"grid_time: the sample's squeeze forces {forces} are not the grid's "
+            f"{grid['squeeze_forces_N']}: its runs share their prefixes differently, so the "
+            "per-run times are only approximate",
+            file=sys.stderr,
+        )
     rows = [{"workers": w, "wall_h": makespan(jobs, w) / 3600.0} for w in a.workers]
     result = {
         "grid": grid.get("name", a.grid),

@@ -1,6 +1,7 @@
 """Type stubs of the native module ``rmi_sph._rmi_sph`` (checked by ``mypy.stubtest``)."""
 
 import os
+from collections.abc import Sequence
 from typing import Any, Final, Literal, final
 
 import numpy as np
@@ -61,7 +62,7 @@ def run_trial(
 
 def run_squeeze_group(
     config: dict[str, Any] | str | os.PathLike[str],
-    squeeze_forces: list[float] | tuple[float, ...],
+    squeeze_forces: Sequence[float],
     *,
     num_threads: int | None = None,
     record_every: int | None = None,

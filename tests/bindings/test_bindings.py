@@ -442,7 +442,7 @@ def test_squeeze_group_members_equal_their_own_trials(
     assert removed[0] != removed[1]
     with pytest.raises(rmi_sph.ConfigError) as info:
         rmi_sph.run_squeeze_group(cfg, [60.0, 500.0])
-    assert info.value.field == "squeeze_force"
+    assert info.value.field == "squeeze_forces[1]"
     perturbed = {**cfg, "controller": {**cfg["controller"], "perturbation": {"enabled": True}}}
     with pytest.raises(rmi_sph.ConfigError) as info:
         rmi_sph.run_squeeze_group(perturbed, [60.0])

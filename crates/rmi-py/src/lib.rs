@@ -120,7 +120,8 @@ fn run_trial<'py>(
 ///     Trial configuration (see ``Trial``); perturbed force targets
 ///     (``controller.perturbation.enabled``) are refused: they depend on the squeeze force.
 /// squeeze_forces : sequence of float
-///     Squeeze force targets (N, each in [0, ``FORCE_LIMIT_N``]).
+///     Squeeze force targets (N, each in [0, ``FORCE_LIMIT_N``]; a bad one is named
+///     ``squeeze_forces[i]``).
 /// num_threads : int, optional
 ///     Worker threads (results do not depend on it).
 /// record_every : int, optional

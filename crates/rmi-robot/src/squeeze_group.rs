@@ -47,8 +47,8 @@ pub fn run_squeeze_group_with<F: FnMut(&Observation) -> bool>(
         ));
     }
     // Every force is checked before the scene is built and soaked.
-    for &f in squeeze_forces {
-        check_range("squeeze_force", f, 0.0, FORCE_LIMIT, "N")?;
+    for (i, &f) in squeeze_forces.iter().enumerate() {
+        check_range(&format!("squeeze_forces[{i}]"), f, 0.0, FORCE_LIMIT, "N")?;
     }
     let n = squeeze_forces.len() as f64;
     let start = Instant::now();

@@ -482,9 +482,9 @@ impl Trial {
         Ok(())
     }
 
-    /// Sets the squeeze force target (N, in [0, [`FORCE_LIMIT`]]) of a trial that has not yet squeezed:
-    /// nothing before the squeeze depends on it unless the hold is perturbed, whose forces it
-    /// seeds.
+    /// Sets the squeeze force target (N, in [0, [`FORCE_LIMIT`]]) of a trial whose squeeze has
+    /// not yet run a step (it may have just entered it): nothing before depends on it unless
+    /// the force targets are perturbed, whose schedule it seeds from the lift on.
     pub(crate) fn set_squeeze_force(&mut self, force: f64) -> Result<()> {
         check_range("squeeze_force", force, 0.0, FORCE_LIMIT, "N")?;
         self.cfg.squeeze_force = force;

@@ -159,6 +159,27 @@ fn trial_is_deterministic_across_threads_and_saved_states() {
     assert!(Trial::from_bytes(&bytes[..bytes.len() / 2], Some(1)).is_err());
 }
 
+/// A saved trial carries its config as JSON: every float must come back with the same bits,
+/// or a continuation (and a squeeze group's members) would run another trial.
+#[test]
+fn config_json_keeps_every_bit_of_its_floats() {
+    let mut u: u64 = 0x9E37_79B9_7F4A_7C15;
+    for _ in 0..20_000 {
+        u = u.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+        let x = f64::from_bits((u >> 12) | 0x3FF0_0000_0000_0000) - 1.0; // in [0, 1)
+        let back: f64 = serde_json::from_str(&serde_json::to_string(&x).unwrap()).unwrap();
+        assert_eq!(back.to_bits(), x.to_bits(), "{x:e}");
+    }
+    // Values that need all 17 digits.
+    let mut c = short(60.0 + 1e-9 / 3.0, 90.0);
+    c.friction.mu_static = 0.6 + 1e-3 / 7.0;
+    c.material.youngs_modulus = 250_000.0 / 3.0;
+    let back = TrialConfig::from_json(&c.to_json()).unwrap();
+    assert_eq!(back.to_json(), c.to_json());
+    assert_eq!(back.friction.mu_static.to_bits(), c.friction.mu_static.to_bits());
+    assert_eq!(back.hold_force.to_bits(), c.hold_force.to_bits());
+}
+
 #[test]
 fn external_actions_drive_the_gripper_and_bad_values_are_refused() {
     let mut t = Trial::new(short(60.0, 90.0), Some(2)).unwrap();

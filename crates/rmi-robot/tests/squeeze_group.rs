@@ -47,6 +47,6 @@ fn perturbed_and_out_of_range_groups_are_refused() {
     let err = run_squeeze_group(cfg, &[30.0, 40.0], Some(1)).unwrap_err().to_string();
     assert!(err.contains("controller.perturbation.enabled"), "{err}");
     let err = run_squeeze_group(tiny(), &[30.0, 401.0], Some(1)).unwrap_err().to_string();
-    assert!(err.contains("squeeze_force") && err.contains("401"), "{err}");
+    assert!(err.contains("squeeze_forces[1]") && err.contains("401"), "{err}");
     assert!(run_squeeze_group(tiny(), &[], Some(1)).unwrap().is_empty());
 }

@@ -505,15 +505,22 @@ def compute_group(
     ``sweep_wall_s`` the group's wall time split evenly). If the group raises (a member's
     trial failed), each run is computed on its own, so that every failure is recorded as it
     happens when run alone."""
-    if len(specs) == 1:
-        return [compute_run(specs[0], configs[0], runner, threads_per_run)]
+    if len(specs) == 1 or runner is not None:
+        return [
+            compute_run(s, c, runner, threads_per_run) for s, c in zip(specs, configs, strict=True)
+        ]
     import rmi_sph
 
     t0 = time.perf_counter()
     try:
         forces = [float(c["squeeze_force"]) for c in configs]
         results = rmi_sph.run_squeeze_group(configs[0], forces, num_threads=threads_per_run)
-    except Exception:  # noqa: BLE001 - each member is rerun and its own error recorded
+    except Exception as exc:  # noqa: BLE001 - each member is rerun and its own error recorded
+        print(
+            f"sweep: the group of {specs[0].run_id} raised ({type(exc).__name__}: {exc}); "
+            "running its runs one by one",
+            file=sys.stderr,
+        )
         return [
             compute_run(s, c, runner, threads_per_run) for s, c in zip(specs, configs, strict=True)
         ]
@@ -650,7 +657,9 @@ def build_index(out_dir: str | os.PathLike[str], write: bool = True) -> pl.DataF
     run followed seeded force targets from the lift on), ``lift_success``,
     ``stable_squeeze``, ``failure``, ``initial_water`` and ``final_water`` (kg),
     ``water_removed_<phase>`` (kg, null where the phase was not reached), ``wall_s`` (s, the
-    engine's figure if it gives one), ``sweep_wall_s`` (s, measured around the runner),
+    engine's figure if it gives one; for runs that shared their prefix, the prefix's time split
+    evenly plus the run's own squeeze), ``sweep_wall_s`` (s, measured around the runner; the
+    group's time split evenly),
     ``n_records``, ``duration_s`` (simulated s), and any other scalar the outcome holds
     (e.g. particle counts). A run file whose outcome ``failure`` mentions "unstable" has
     status ``unstable``.
@@ -941,8 +950,9 @@ def _run_local(
     record: Callable[[Any], None],
 ) -> None:
     """Process pool with spawn, one task per :func:`prefix_groups` group. A worker that dies
-    (e.g. a crash in native code) breaks the pool; its group's unfinished runs are retried
-    in a fresh pool, and a group that breaks it twice has them recorded as failed."""
+    (e.g. a crash in native code) breaks the pool; the runs of its group are retried one by
+    one in a fresh pool (those already stored are skipped), and a run that breaks it twice is
+    recorded as failed."""
     ctx = multiprocessing.get_context("spawn")
     attempts: dict[str, int] = {}
     todo = list(groups)
@@ -959,13 +969,14 @@ def _run_local(
                     for res in fut.result():
                         record(res)
                 except cf.process.BrokenProcessPool:
-                    key = group[0].run_id
-                    attempts[key] = attempts.get(key, 0) + 1
-                    if attempts[key] >= 2:
-                        err = "worker process died twice while running this trial"
-                        _record_lost(group, args[0], err, record)
-                    else:
-                        retry.append(group)
+                    # Retried one run at a time: one trial's crash costs no other run.
+                    for spec in group:
+                        attempts[spec.run_id] = attempts.get(spec.run_id, 0) + 1
+                        if attempts[spec.run_id] >= 2:
+                            err = "worker process died twice while running this trial"
+                            _record_lost([spec], args[0], err, record)
+                        else:
+                            retry.append([spec])
         todo = retry
 
 
