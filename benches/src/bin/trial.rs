@@ -106,12 +106,18 @@ fn main() {
     });
     match res {
         Ok(r) => println!("{}", serde_json::to_string_pretty(&r.outcome).unwrap()),
-        Err(e @ rmi_sph::RmiError::InvalidConfig { .. }) => fail(&e.to_string()),
-        Err(e) => {
-            eprintln!("error: {e}");
-            std::process::exit(1);
-        }
+        Err(e) => exit_with(e),
     }
+}
+
+/// Ends the process on a trial error: a config error as a usage error, anything else with
+/// status 1.
+fn exit_with(e: rmi_sph::RmiError) -> ! {
+    if let rmi_sph::RmiError::InvalidConfig { .. } = e {
+        fail(&e.to_string());
+    }
+    eprintln!("error: {e}");
+    std::process::exit(1);
 }
 
 /// The members of a squeeze group, one outcome per line, and the group's wall time.
@@ -128,11 +134,7 @@ fn squeeze_group(cfg: TrialConfig, list: &str, threads: usize) {
             }
             println!("{{\"group_wall_s\": {:.3}}}", t0.elapsed().as_secs_f64());
         }
-        Err(e @ rmi_sph::RmiError::InvalidConfig { .. }) => fail(&e.to_string()),
-        Err(e) => {
-            eprintln!("error: {e}");
-            std::process::exit(1);
-        }
+        Err(e) => exit_with(e),
     }
 }
 

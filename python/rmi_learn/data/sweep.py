@@ -486,9 +486,8 @@ def prefix_groups(
     groups: dict[str, list[RunSpec]] = {}
     for s in specs:
         config = configs[s.run_id]
-        perturbed = config.get("controller", {}).get("perturbation", {}).get("enabled", False)
         shared = json.dumps({**config, "squeeze_force": None}, sort_keys=True)
-        key = s.run_id if perturbed else shared
+        key = s.run_id if is_perturbed(config) else shared
         groups.setdefault(key, []).append(s)
     return list(groups.values())
 
@@ -580,16 +579,13 @@ def execute_group(
 ) -> list[dict[str, Any]]:
     """:func:`execute_run` for a :func:`prefix_groups` group: the runs not yet done are
     computed together (:func:`compute_group`) and stored one by one."""
-    todo = [
-        (s, c)
-        for s, c in zip(specs, configs, strict=True)
-        if not is_done(run_path(runs_root, s.params).parent, retry_failed)
-    ]
-    done = [
-        {"run_id": s.run_id, "status": "skipped", "wall_s": 0.0, "error": None}
-        for s in specs
-        if all(s is not t for t, _ in todo)
-    ]
+    todo: list[tuple[RunSpec, dict[str, Any]]] = []
+    done: list[dict[str, Any]] = []
+    for s, c in zip(specs, configs, strict=True):
+        if is_done(run_path(runs_root, s.params).parent, retry_failed):
+            done.append({"run_id": s.run_id, "status": "skipped", "wall_s": 0.0, "error": None})
+        else:
+            todo.append((s, c))
     if not todo:
         return done
     results = compute_group([s for s, _ in todo], [c for _, c in todo], runner, threads_per_run)

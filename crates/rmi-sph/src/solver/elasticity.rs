@@ -106,34 +106,31 @@ pub fn prepare(c: &Ctx, rot: &[UnitQuaternion<f64>], saturation: &[f64], out: &m
     let rl = &out.rl;
     // Per solid: P R L, G_s, F~ and the moduli.
     type Row = (Matrix3<f64>, Vector3<f64>, Matrix3<f64>, (f64, f64));
-    let rows: Vec<Row> = (0..ns)
-        .into_par_iter()
-        .map(|s| {
-            rmi_par::cpu::hot(
-                #[inline(always)]
-                || {
-                    let a = nf + s;
-                    let rs = rot[s].to_rotation_matrix();
-                    let mut grad = Matrix3::zeros();
-                    let mut gsum = Vector3::zeros();
-                    let mut ftil = Matrix3::zeros();
-                    for e in rest.start[s] as usize..rest.start[s + 1] as usize {
-                        let r = rest.nbr[e] as usize;
-                        ftil += rest.v0[r - nf] * (x[r] - x[a]) * (rest.l[s] * rest.grad0[e]).transpose();
-                        let g = rl[s] * rest.grad0[e];
-                        let u = (x[r] - x[a]) - rs * (rest.x0[r - nf] - rest.x0[s]);
-                        grad += rest.v0[r - nf] * u * g.transpose();
-                        gsum += rest.v0[r - nf] * g;
-                    }
-                    let sat = saturation[a];
-                    let (mu, lam) = moduli(c, a, sat);
-                    let o = c.object(a);
-                    let bloat = o.lambda * o.material.bloating * sat;
-                    (stress(&grad, mu, lam, bloat) * rl[s], gsum, ftil, (mu, lam))
-                },
-            )
-        })
-        .collect();
+    let mut rows: Vec<Row> = vec![(Matrix3::zeros(), Vector3::zeros(), Matrix3::zeros(), (0.0, 0.0)); ns];
+    rmi_par::for_each_hot(
+        &mut rows,
+        #[inline(always)]
+        |s, row| {
+            let a = nf + s;
+            let rs = rot[s].to_rotation_matrix();
+            let mut grad = Matrix3::zeros();
+            let mut gsum = Vector3::zeros();
+            let mut ftil = Matrix3::zeros();
+            for e in rest.start[s] as usize..rest.start[s + 1] as usize {
+                let r = rest.nbr[e] as usize;
+                ftil += rest.v0[r - nf] * (x[r] - x[a]) * (rest.l[s] * rest.grad0[e]).transpose();
+                let g = rl[s] * rest.grad0[e];
+                let u = (x[r] - x[a]) - rs * (rest.x0[r - nf] - rest.x0[s]);
+                grad += rest.v0[r - nf] * u * g.transpose();
+                gsum += rest.v0[r - nf] * g;
+            }
+            let sat = saturation[a];
+            let (mu, lam) = moduli(c, a, sat);
+            let o = c.object(a);
+            let bloat = o.lambda * o.material.bloating * sat;
+            *row = (stress(&grad, mu, lam, bloat) * rl[s], gsum, ftil, (mu, lam));
+        },
+    );
     out.prl.clear();
     out.gsum.clear();
     out.ftil.clear();

@@ -238,16 +238,17 @@ impl TwoLevel {
         let nagg = agg.len();
         let azt = az.transpose(nagg);
         // E[I, J] = sum over the members b of I of (A Z)_{b, J} (Z is the identity on members).
+        // One builder per worker: its column table spans every aggregate.
         let rows: Vec<Vec<(u32, Matrix3<f64>)>> = (0..nagg)
             .into_par_iter()
-            .map(|i| {
-                let mut b = RowBuilder::new();
+            .map_init(RowBuilder::new, |b, i| {
+                b.clear();
                 for &a in agg.members(i) {
                     for (j, m) in az.row(a as usize) {
                         b.add(j, *m);
                     }
                 }
-                b.cols.into_iter().zip(b.blks).collect()
+                b.cols.iter().copied().zip(b.blks.iter().copied()).collect()
             })
             .collect();
         // Symmetrise: A is symmetric, E only up to round-off.
