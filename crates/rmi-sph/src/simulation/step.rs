@@ -182,6 +182,20 @@ impl Simulation {
         f(&mut op)
     }
 
+    /// The next step's pressure problem at the current state (neighbours, fields, the current
+    /// velocities as the predicted ones, the last step's kappa dt^2 as the warm start), handed
+    /// to `f` as (context, fields, rest densities, velocities, kappa dt^2), without stepping.
+    #[cfg(test)]
+    pub(crate) fn with_pressure_problem<R>(
+        &mut self,
+        f: impl FnOnce(&Ctx, &density::DensityFields, &[f64], &[Vector3<f64>], &[f64]) -> R,
+    ) -> R {
+        self.build_neighbours();
+        let ctx = Ctx::new(&self.p, &self.nb, &self.nbb, &self.bnd, &self.objects, &self.rest, &self.kernel, &self.cfg);
+        density::compute(&ctx, &mut self.dens);
+        f(&ctx, &self.dens, &self.rho0, &self.p.v, &self.kappa_dt2)
+    }
+
     pub(super) fn build_neighbours(&mut self) {
         let h = self.kernel.support();
         self.bnd.ensure_grid(h);

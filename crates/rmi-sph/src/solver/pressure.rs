@@ -6,7 +6,9 @@
 //! every pair sum (most pairs of any scene) is evaluated in the position-free form of
 //! [`crate::neighbourhood::pairsum`]: each pass writes one 32-byte record per particle that the next pass
 //! gathers, so a pair costs one gather and a four-wide multiply-add. The skeleton's pairs keep
-//! the direct form.
+//! the direct form; while no skeleton particle carries pressure (a compressible skeleton's
+//! own density stays below rest), the skeleton's rows of the iterations are exact zeros and
+//! are skipped.
 
 use crate::neighbourhood::pairsum::{self, Frame, Rec4};
 use crate::solver::ctx::Ctx;
@@ -104,8 +106,10 @@ impl Factors {
 }
 
 /// Pressure acceleration of particle `a` for the current kappa; `w.rec` holds the records
-/// `[kappa x, kappa]` of the same kappa.
+/// `[kappa x, kappa]` of the same kappa. `solid_live` is false when every skeleton kappa is
+/// zero: a skeleton row is then exactly zero and is not summed.
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn accel(
     c: &Ctx,
     fs: &Factors,
@@ -114,6 +118,7 @@ fn accel(
     rho0: &[f64],
     gb: &[Vector3<f64>],
     w: WaterPairs,
+    solid_live: bool,
 ) -> Vector3<f64> {
     let nb = c.nb.of(a);
     let ka = kappa[a];
@@ -127,7 +132,7 @@ fn accel(
             let b = nb.j[k] as usize;
             acc -= (fs.from_solid[b] * v * ka) * nb.g(k);
         }
-    } else {
+    } else if solid_live {
         let r0a = rho0[a];
         for k in nb.n_fluid..nb.j.len() {
             let b = nb.j[k] as usize;
@@ -139,14 +144,20 @@ fn accel(
             let ratio = if rho0[b] == r0a { 1.0 } else { rho0[b] / r0a };
             acc -= (f_ab * v * (ka + ratio * kappa[b])) * nb.g(k);
         }
+    } else {
+        // Every term is a signed zero and `acc` starts at +0: the sum would be +0, and
+        // `gb[a]` is zero for the skeleton.
+        return Vector3::zeros();
     }
     acc - ka * gb[a]
 }
 
 /// Divergence-like sum `sum_b f V (q_a - q_b) . grad W_ab` over dynamic neighbours; `w.rec`
-/// holds the records `[q, q . x]` of the same `q`.
+/// holds the records `[q, q . x]` of the same `q`. `solid_live` false says that `q` is zero
+/// on every skeleton particle (the pressure accelerations of a skeleton without pressure):
+/// a skeleton row, which sums over skeleton neighbours only, is then +0 and is not summed.
 #[inline(always)]
-fn div(c: &Ctx, fs: &Factors, a: usize, q: &[Vector3<f64>], w: WaterPairs) -> f64 {
+fn div(c: &Ctx, fs: &Factors, a: usize, q: &[Vector3<f64>], w: WaterPairs, solid_live: bool) -> f64 {
     let nb = c.nb.of(a);
     let v = c.vol;
     let qa = q[a];
@@ -158,7 +169,7 @@ fn div(c: &Ctx, fs: &Factors, a: usize, q: &[Vector3<f64>], w: WaterPairs) -> f6
             let b = nb.j[k] as usize;
             s += fs.from_solid[b] * v * (qa - q[b]).dot(&nb.g(k));
         }
-    } else {
+    } else if solid_live {
         for k in nb.n_fluid..nb.j.len() {
             let b = nb.j[k] as usize;
             s += fs.solid_pair(c, a, b) * v * (qa - q[b]).dot(&nb.g(k));
@@ -182,6 +193,25 @@ pub fn solve(
     kappa_dt2: &mut [f64],
     work: &mut PressureWork,
     n_materials: usize,
+) -> (PressureStats, Vec<BodyLoad>) {
+    solve_with(c, dens, settings, rho0, v, kappa, kappa_dt2, work, n_materials, true)
+}
+
+/// [`solve`], with the skip of an idle skeleton's rows chosen (`skip_idle_skeleton`): a
+/// compressible skeleton's own density stays far below its rest value, so its kappa is
+/// zero in nearly every scene and its rows of the iterations sum nothing but zeros.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn solve_with(
+    c: &Ctx,
+    dens: &DensityFields,
+    settings: &PressureSettings,
+    rho0: &[f64],
+    v: &mut [Vector3<f64>],
+    kappa: &mut Vec<f64>,
+    kappa_dt2: &mut [f64],
+    work: &mut PressureWork,
+    n_materials: usize,
+    skip_idle_skeleton: bool,
 ) -> (PressureStats, Vec<BodyLoad>) {
     let n = c.p.len();
     let dt = c.dt;
@@ -217,7 +247,7 @@ pub fn solve(
             |a, s, ka, r| {
                 // The walls' part of the velocity divergence, sum V_k (v_a - v_k) . grad W_ak.
                 let bdiv = vv[a].dot(&gb[a]) - dens.boundary_flux[a];
-                let rho_adv = dens.rho_ratio[a] + dt * (div(c, fs, a, vv, w) + bdiv);
+                let rho_adv = dens.rho_ratio[a] + dt * (div(c, fs, a, vv, w, true) + bdiv);
                 *s = 1.0 - rho_adv;
                 *ka = if settings.warm_start && rho_adv > 1.0 {
                     settings.warm_start_factor * kdt2[a].min(2.5e-4) / dt2
@@ -232,6 +262,11 @@ pub fn solve(
         (0..n_materials).map(|m| c.p.material.iter().filter(|&&x| x as usize == m).count().max(1) as f64).collect();
     let mut stats = PressureStats { iterations: 0, error: vec![0.0; n_materials] };
     let eta = settings.max_error;
+    // Whether any skeleton particle carries pressure: while none does, the skeleton's rows of
+    // the iterations are exact zeros and are skipped (a sponge that is not compressed).
+    let nf = c.p.n_fluid;
+    let live = |kappa: &[f64]| !skip_idle_skeleton || kappa[nf..].iter().any(|&k| k != 0.0);
+    let mut solid_live = live(kappa);
     loop {
         {
             let kap: &[f64] = kappa;
@@ -241,7 +276,7 @@ pub fn solve(
                 &mut work.rq,
                 #[inline(always)]
                 |a, ap, r| {
-                    *ap = accel(c, fs, a, kap, rho0, gb, w);
+                    *ap = accel(c, fs, a, kap, rho0, gb, w, solid_live);
                     *r = Rec4::vector_moment(ap, &x[a]);
                 },
             );
@@ -256,7 +291,7 @@ pub fn solve(
                 &mut work.rk,
                 #[inline(always)]
                 |a, ka, e, r| {
-                    let akappa = dt2 * (div(c, fs, a, ap, w) + ap[a].dot(&gb[a]));
+                    let akappa = dt2 * (div(c, fs, a, ap, w, solid_live) + ap[a].dot(&gb[a]));
                     let residual = source[a] - akappa;
                     *e = (-residual).max(0.0);
                     let alpha = dens.alpha[a];
@@ -266,6 +301,7 @@ pub fn solve(
             );
         }
         stats.iterations += 1;
+        solid_live = live(kappa);
         let mut converged = true;
         for (m, em) in stats.error.iter_mut().enumerate() {
             let mat = &c.p.material;
@@ -288,7 +324,7 @@ pub fn solve(
             kappa_dt2,
             #[inline(always)]
             |a, va, kt| {
-                *va += dt * accel(c, fs, a, kap, rho0, gb, w);
+                *va += dt * accel(c, fs, a, kap, rho0, gb, w, solid_live);
                 *kt = kap[a] * dt2;
             },
         );
@@ -338,5 +374,78 @@ fn body_reactions_of(c: &Ctx, kappa: &[f64], range: std::ops::Range<usize>, acc:
             acc[bi].0 += f;
             acc[bi].1 += (c.bnd.x[kk] - c.bnd.bodies[bi].state.position).cross(&f);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{presets, Simulation};
+
+    /// Solves the next step's pressure problem of `sim` with and without the skip of an idle
+    /// skeleton and asserts the same bits; returns whether the skeleton carried pressure.
+    fn skip_is_exact(sim: &mut Simulation) -> bool {
+        let cfg = sim.config().clone();
+        let ps = PressureSettings {
+            max_error: cfg.pressure.max_error,
+            min_iterations: cfg.pressure.min_iterations,
+            max_iterations: cfg.pressure.max_iterations,
+            omega: cfg.pressure.omega,
+            warm_start: cfg.pressure.warm_start,
+            warm_start_factor: cfg.pressure.warm_start_factor,
+        };
+        sim.with_pressure_problem(|c, dens, rho0, v, kdt2| {
+            let run = |skip: bool| {
+                let (mut v, mut kdt2) = (v.to_vec(), kdt2.to_vec());
+                let mut kappa = Vec::new();
+                let (st, loads) = solve_with(
+                    c,
+                    dens,
+                    &ps,
+                    rho0,
+                    &mut v,
+                    &mut kappa,
+                    &mut kdt2,
+                    &mut PressureWork::default(),
+                    1 + c.objects.len(),
+                    skip,
+                );
+                (st.iterations, st.error, loads, v, kappa, kdt2)
+            };
+            let (skipped, full) = (run(true), run(false));
+            assert!(skipped.0 > 2, "the solve should iterate: {} iterations", skipped.0);
+            let bits = |x: &[f64]| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            let vbits = |x: &[Vector3<f64>]| x.iter().flat_map(|v| v.iter().map(|e| e.to_bits())).collect::<Vec<_>>();
+            assert_eq!(skipped.0, full.0);
+            assert_eq!(bits(&skipped.1), bits(&full.1));
+            assert_eq!(skipped.2, full.2);
+            assert_eq!(vbits(&skipped.3), vbits(&full.3), "velocities");
+            assert_eq!(bits(&skipped.4), bits(&full.4), "kappa");
+            assert_eq!(bits(&skipped.5), bits(&full.5), "kappa dt^2");
+            full.4[c.p.n_fluid..].iter().any(|&k| k != 0.0)
+        })
+    }
+
+    #[test]
+    fn skipping_an_idle_skeleton_changes_no_bit() {
+        // A compressible skeleton: its own density stays below rest, its rows are skipped.
+        let mut sim = Simulation::new(presets::sponge([0.04, 0.04, 0.06], 0.6, 0.004), Some(2)).unwrap();
+        sim.run(20).unwrap();
+        assert!(!skip_is_exact(&mut sim), "a compressible skeleton should carry no pressure");
+    }
+
+    #[test]
+    fn a_skeleton_under_pressure_is_solved_in_full() {
+        // An incompressible skeleton on a floor, pressed by its own weight: its kappa turns
+        // positive, and the solve must equal the unskipped one while it does.
+        let mut cfg = presets::sponge([0.04, 0.04, 0.06], 0.6, 0.004);
+        cfg.scene.porous_blocks[0].material.compressible = false;
+        let mut sim = Simulation::new(cfg, Some(2)).unwrap();
+        let mut live = 0;
+        for _ in 0..10 {
+            sim.run(2).unwrap();
+            live += skip_is_exact(&mut sim) as u32;
+        }
+        assert!(live > 0, "the skeleton never carried pressure");
     }
 }
