@@ -198,7 +198,7 @@ pub fn solve(
 }
 
 /// [`solve`], with the skip of an idle skeleton's rows chosen (`skip_idle_skeleton`): a
-/// compressible skeleton's own density stays far below its rest value, so its kappa is
+/// compressible skeleton's own density stays below its rest value, so its kappa is
 /// zero in nearly every scene and its rows of the iterations sum nothing but zeros.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn solve_with(
