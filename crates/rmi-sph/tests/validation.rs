@@ -100,11 +100,20 @@ fn dam_break_conserves_volume_and_respects_ritter_bound() {
 /// Darcy gives the superficial velocity q = k rho g / mu and interstitial u = q / phi.
 #[test]
 fn darcy_drainage_matches_permeability() {
+    for single_solve in [false, true] {
+        darcy_drainage(single_solve);
+    }
+}
+
+/// The drainage case of [`darcy_drainage_matches_permeability`], with one implicit solve per
+/// step (`pressure.single_solve`) or two.
+fn darcy_drainage(single_solve: bool) {
     let r = 0.005;
     let k_perm = 1e-9;
     let phi = 0.6;
     let mut cfg = SimConfig { particle_radius: r, dt: 1e-3, ..Default::default() };
     cfg.fluid.viscosity = 1e-3;
+    cfg.pressure.single_solve = single_solve;
     let material = PorousMaterial { porosity: phi, permeability: k_perm, adhesion: 0.0, ..Default::default() };
     cfg.scene.porous_blocks.push(PorousBlock {
         min: [-0.04, -0.04, 0.0],
@@ -129,14 +138,14 @@ fn darcy_drainage_matches_permeability() {
     let expected = k_perm * rho * G / (mu * phi);
     let err = (u - expected).abs() / expected;
     println!(
-        "darcy: interstitial speed {:.4} m/s vs {:.4} m/s ({:.1} %), {} particles sampled",
+        "darcy (single solve = {single_solve}): interstitial speed {:.4} m/s vs {:.4} m/s ({:.1} %), {} particles sampled",
         u,
         expected,
         100.0 * err,
         vz.len()
     );
     record(
-        "Darcy drainage",
+        if single_solve { "Darcy drainage (single solve)" } else { "Darcy drainage" },
         "fixed saturated skeleton, k = 1e-9 m^2, phi = 0.6, r = 5 mm",
         &format!("interstitial speed {u:.4} m/s"),
         &format!("k rho g / (mu phi) = {expected:.4} m/s"),
@@ -310,9 +319,10 @@ fn buoyancy_of_submerged_skeleton() {
 /// the total weight (momentum balance through contacts, boundary pressure and buoyancy).
 #[test]
 fn resting_sponge_floor_load_equals_weight() {
-    for saturated in [false, true] {
+    for (saturated, single_solve) in [(false, false), (true, false), (true, true)] {
         let mut cfg = rmi_sph::presets::sponge([0.06, 0.06, 0.12], 0.6, 0.005);
         cfg.scene.porous_blocks[0].saturated = saturated;
+        cfg.pressure.single_solve = single_solve;
         let mut sim = Simulation::new(cfg, Some(2)).unwrap();
         let weight = G * sim.particles().mass.iter().sum::<f64>();
         run(&mut sim, 500);
@@ -323,7 +333,7 @@ fn resting_sponge_floor_load_equals_weight() {
             load -= sim.boundary().bodies[0].force.z / n as f64;
         }
         let err = (load - weight).abs() / weight;
-        println!("resting sponge (saturated = {saturated}): mean floor load {load:.4} N vs weight {weight:.4} N ({:.2} %), {} contacts", 100.0 * err, sim.contacts().len());
+        println!("resting sponge (saturated = {saturated}, single solve = {single_solve}): mean floor load {load:.4} N vs weight {weight:.4} N ({:.2} %), {} contacts", 100.0 * err, sim.contacts().len());
         // The dry skeleton stands on its contacts. Saturated, its pores hold hydrostatic water
         // (the pressure impulse is drag-coupled), and a skeleton lighter than the water it
         // displaces ((1 - phi) rho_f = 400 > 100 kg/m^3) rests on the water film instead; it
@@ -334,7 +344,11 @@ fn resting_sponge_floor_load_equals_weight() {
         println!("  lowest skeleton particle at z = {lowest:.4} m (placed at {:.4} m)", d / 2.0);
         let supported = if saturated { lowest < d } else { !sim.contacts().is_empty() };
         record(
-            &format!("resting sponge ({})", if saturated { "saturated" } else { "dry" }),
+            &format!(
+                "resting sponge ({}{})",
+                if saturated { "saturated" } else { "dry" },
+                if single_solve { ", single solve" } else { "" }
+            ),
             "6 x 6 x 12 cm on a floor, r = 5 mm, 0.2 s average",
             &format!("floor load {load:.4} N"),
             &format!("weight {weight:.4} N"),
@@ -584,11 +598,12 @@ impl Squeezed {
 /// soaked, then pressed by a frictionless plate from above by `strain` of its lattice height
 /// (L - d: contacts hold the end layers half a spacing from floor and plate) at 1 cm/s, and
 /// held for 0.5 s.
-fn squeeze_saturated_cube(r: f64, side: f64, strain: f64, nu: f64) -> Squeezed {
+fn squeeze_saturated_cube(r: f64, side: f64, strain: f64, nu: f64, single_solve: bool) -> Squeezed {
     let d = 2.0 * r;
     let mut cfg = rmi_sph::presets::sponge([side, side, side], 0.6, r);
     cfg.scene.soak_time = rmi_sph::presets::SOAK_TIME;
     cfg.scene.porous_blocks[0].material.poisson_ratio = nu;
+    cfg.pressure.single_solve = single_solve;
     cfg.scene.bodies.push(BodyConfig {
         name: "plate".into(),
         shape: Shape::Box { half_extents: [side, side, 2.0 * d] },
@@ -622,13 +637,13 @@ fn squeeze_saturated_cube(r: f64, side: f64, strain: f64, nu: f64) -> Squeezed {
 }
 
 /// Squeezes the 8 cm cube at `r` for nu = 0 and 0.3 and prints each outcome.
-fn squeezed_cube_series(r: f64) -> Vec<Squeezed> {
+fn squeezed_cube_series(r: f64, single_solve: bool) -> Vec<Squeezed> {
     [0.0, 0.3]
         .into_iter()
         .map(|nu| {
-            let o = squeeze_saturated_cube(r, 0.08, 0.1, nu);
+            let o = squeeze_saturated_cube(r, 0.08, 0.1, nu, single_solve);
             println!(
-                "squeezed cube, r = {:.1} mm, nu = {nu}: released {:.1} g of {:.0} g vs rho (1 - 2 nu) t A = {:.1} g ({:+.1} %); by particle position {:.1} g",
+                "squeezed cube, r = {:.1} mm, nu = {nu}, single solve = {single_solve}: released {:.1} g of {:.0} g vs rho (1 - 2 nu) t A = {:.1} g ({:+.1} %); by particle position {:.1} g",
                 1e3 * r,
                 1e3 * o.released,
                 1e3 * o.water,
@@ -650,11 +665,19 @@ fn squeezed_cube_series(r: f64) -> Vec<Squeezed> {
 /// released. r = 5 mm, nu = 0 and 0.3.
 #[test]
 fn squeezed_sponge_releases_its_closed_pore_volume() {
-    let rows = squeezed_cube_series(0.005);
+    for single_solve in [false, true] {
+        squeezed_sponge_case(single_solve);
+    }
+}
+
+/// The case of [`squeezed_sponge_releases_its_closed_pore_volume`], with one implicit solve
+/// per step (`pressure.single_solve`) or two.
+fn squeezed_sponge_case(single_solve: bool) {
+    let rows = squeezed_cube_series(0.005, single_solve);
     let pass = rows.iter().all(|o| o.error().abs() < 0.1);
     let fmt = |f: fn(&Squeezed) -> String| rows.iter().map(f).collect::<Vec<_>>().join(" / ");
     record(
-        "squeezed sponge",
+        if single_solve { "squeezed sponge (single solve)" } else { "squeezed sponge" },
         "saturated 8 cm cube, phi = 0.6, k = 3e-11 m^2, frictionless plate, 10 % at 1 cm/s, 0.5 s hold; nu = 0 / 0.3, r = 5 mm",
         &format!("released {}", fmt(|o| format!("{:.1} g", 1e3 * o.released))),
         &format!("rho_f (1 - 2 nu) t A = {}", fmt(|o| format!("{:.1} g", 1e3 * o.expected))),
@@ -671,6 +694,6 @@ fn squeezed_sponge_releases_its_closed_pore_volume() {
 #[ignore]
 fn squeezed_sponge_refined() {
     for r in [0.004, 0.0025] {
-        squeezed_cube_series(r);
+        squeezed_cube_series(r, false);
     }
 }

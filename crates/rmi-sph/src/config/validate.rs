@@ -95,6 +95,13 @@ impl SimConfig {
                 format!("an integer in [0, pressure.max_iterations = {}]", p.max_iterations),
             ));
         }
+        if p.single_solve && !p.drag_coupled {
+            return Err(RmiError::config(
+                "pressure.single_solve",
+                p.single_solve,
+                "false while pressure.drag_coupled is false (the single solve is a drag-coupled scheme)",
+            ));
+        }
         range("cg.tolerance", self.cg.tolerance, 1e-14, 0.1, "(relative residual)")?;
         if self.cg.max_iterations == 0 || self.cg.max_iterations > 10_000 {
             return Err(RmiError::config("cg.max_iterations", self.cg.max_iterations, "an integer in [1, 10000]"));

@@ -253,9 +253,53 @@ impl Simulation {
         let mut contacts: Vec<Contact> = Vec::with_capacity(detected.len());
         let cons: Vec<_> = detected.iter().map(|d| d.0).collect();
         let mut system = implicit.then(|| implicit::Op::new(&ctx, &self.dens, &self.ef, &nps, cons));
+        let nf = self.p.n_fluid;
+        let fixed = &self.rest.fixed;
+        let ps = PressureSettings::from(&cfg.pressure);
+        let coupled = cfg.pressure.drag_coupled && system.is_some() && self.p.n_solid() > 0 && nf > 0;
+        // Buoyancy reads the previous step's pressure (before a single solve overwrites it).
+        let kappa_prev: Vec<f64> = self.kappa_dt2.iter().map(|k| k / (dt * dt)).collect();
+        // Single solve: the pressure first, on the velocities with gravity alone; its impulse
+        // then joins the implicit solve's right-hand side.
+        let mut solved_first = None;
+        let mut pressure_impulse = None;
+        let mut first_seconds = 0.0;
+        if coupled && cfg.pressure.single_solve {
+            let tp = Instant::now();
+            let still = |a: usize| a >= nf && fixed[a - nf];
+            let v_pred: Vec<Vector3<f64>> =
+                v.iter().enumerate().map(|(a, vi)| if still(a) { Vector3::zeros() } else { vi + dt * g }).collect();
+            let mut v_p = v_pred.clone();
+            solved_first = Some(pressure::solve(
+                &ctx,
+                &self.dens,
+                &ps,
+                &self.rho0,
+                &mut v_p,
+                &mut self.kappa,
+                &mut self.kappa_dt2,
+                &mut self.pwork,
+                1 + self.objects.len(),
+            ));
+            let dv: Vec<Vector3<f64>> = v_p
+                .iter()
+                .zip(&v_pred)
+                .enumerate()
+                .map(|(a, (p, q))| if still(a) { Vector3::zeros() } else { p - q })
+                .collect();
+            pressure_impulse = Some(dv);
+            first_seconds = tp.elapsed().as_secs_f64();
+        }
         let cg = if let Some(op) = &system {
-            let kappa_prev: Vec<f64> = self.kappa_dt2.iter().map(|k| k / (dt * dt)).collect();
-            let (cg, impulses) = implicit::solve(op, &kappa_prev, &g, &mut v, &mut self.dv_prev, &mut self.cgwork);
+            let (cg, impulses) = implicit::solve(
+                op,
+                &kappa_prev,
+                &g,
+                &mut v,
+                &mut self.dv_prev,
+                &mut self.cgwork,
+                pressure_impulse.as_deref(),
+            );
             for ((con, body, point), j) in detected.iter().zip(impulses) {
                 let mut c = Contact {
                     particle: con.particle,
@@ -275,8 +319,6 @@ impl Simulation {
         // 7-9. Explicit accelerations (and gravity when there was no implicit solve), predict.
         self.acc.par_iter_mut().for_each(|a| *a = if implicit { Vector3::zeros() } else { g });
         implicit::explicit_accelerations(&ctx, &self.dens, &nps, &v_old, &mut self.acc);
-        let nf = self.p.n_fluid;
-        let fixed = &self.rest.fixed;
         v.par_iter_mut().zip(self.acc.par_iter()).enumerate().for_each(|(a, (vi, ai))| {
             if a >= nf && fixed[a - nf] {
                 *vi = Vector3::zeros();
@@ -285,28 +327,22 @@ impl Simulation {
             }
         });
         let t3 = Instant::now();
-        // 10. Pressure solve.
-        let ps = PressureSettings {
-            max_error: cfg.pressure.max_error,
-            min_iterations: cfg.pressure.min_iterations,
-            max_iterations: cfg.pressure.max_iterations,
-            omega: cfg.pressure.omega,
-            warm_start: cfg.pressure.warm_start,
-            warm_start_factor: cfg.pressure.warm_start_factor,
+        // 10. Pressure solve (done already under a single solve), then the response to it.
+        let v_pre = (coupled && solved_first.is_none()).then(|| v.clone());
+        let (pstats, reactions) = match solved_first {
+            Some(done) => done,
+            None => pressure::solve(
+                &ctx,
+                &self.dens,
+                &ps,
+                &self.rho0,
+                &mut v,
+                &mut self.kappa,
+                &mut self.kappa_dt2,
+                &mut self.pwork,
+                1 + self.objects.len(),
+            ),
         };
-        let v_pre =
-            (cfg.pressure.drag_coupled && system.is_some() && self.p.n_solid() > 0 && nf > 0).then(|| v.clone());
-        let (pstats, reactions) = pressure::solve(
-            &ctx,
-            &self.dens,
-            &ps,
-            &self.rho0,
-            &mut v,
-            &mut self.kappa,
-            &mut self.kappa_dt2,
-            &mut self.pwork,
-            1 + self.objects.len(),
-        );
         let t3p = Instant::now();
         let pressure_response = match (v_pre, &mut system) {
             (Some(v_pre), Some(op)) => {
@@ -410,8 +446,8 @@ impl Simulation {
             seconds: [
                 (t1 - t0).as_secs_f64(),
                 (t2 - t1).as_secs_f64(),
-                (t3 - t2).as_secs_f64(),
-                (t3p - t3).as_secs_f64(),
+                (t3 - t2).as_secs_f64() - first_seconds,
+                (t3p - t3).as_secs_f64() + first_seconds,
                 (t4 - t3p).as_secs_f64(),
                 (t5 - t4).as_secs_f64(),
             ],

@@ -37,6 +37,19 @@ pub struct PressureSettings {
     pub warm_start_factor: f64,
 }
 
+impl From<&crate::config::PressureConfig> for PressureSettings {
+    fn from(p: &crate::config::PressureConfig) -> Self {
+        PressureSettings {
+            max_error: p.max_error,
+            min_iterations: p.min_iterations,
+            max_iterations: p.max_iterations,
+            omega: p.omega,
+            warm_start: p.warm_start,
+            warm_start_factor: p.warm_start_factor,
+        }
+    }
+}
+
 /// What one pressure solve did.
 #[derive(Clone, Debug, Default)]
 pub struct PressureStats {
@@ -386,14 +399,7 @@ mod tests {
     /// skeleton and asserts the same bits; returns whether the skeleton carried pressure.
     fn skip_is_exact(sim: &mut Simulation) -> bool {
         let cfg = sim.config().clone();
-        let ps = PressureSettings {
-            max_error: cfg.pressure.max_error,
-            min_iterations: cfg.pressure.min_iterations,
-            max_iterations: cfg.pressure.max_iterations,
-            omega: cfg.pressure.omega,
-            warm_start: cfg.pressure.warm_start,
-            warm_start_factor: cfg.pressure.warm_start_factor,
-        };
+        let ps = PressureSettings::from(&cfg.pressure);
         sim.with_pressure_problem(|c, dens, rho0, v, kdt2| {
             let run = |skip: bool| {
                 let (mut v, mut kdt2) = (v.to_vec(), kdt2.to_vec());

@@ -13,7 +13,9 @@ use rayon::prelude::*;
 /// `kappa_prev` (kappa of the previous step) drives buoyancy; `gravity` (m/s^2) is part of
 /// the right-hand side so that constraints see it; `dv_prev` is the warm start, updated to
 /// v* - v on exit. Returns the statistics and the impulse (N s) each constraint exerted on
-/// its particle (along the normal; the whole vector for a sticking contact).
+/// its particle (along the normal; the whole vector for a sticking contact). `impulse`, when
+/// given, is a velocity increment (m/s) per particle whose momentum `m dv` joins the
+/// right-hand side (the pressure impulse of [`crate::config::PressureConfig::single_solve`]).
 #[allow(clippy::too_many_arguments)]
 pub fn solve(
     op: &Op,
@@ -22,6 +24,7 @@ pub fn solve(
     v: &mut [Vector3<f64>],
     dv_prev: &mut [Vector3<f64>],
     w: &mut CgWork,
+    impulse: Option<&[Vector3<f64>]>,
 ) -> (CgStats, Vec<Vector3<f64>>) {
     let (c, ef, s, constraints) = (op.c, op.ef, op.s, &op.constraints);
     let n = c.p.len();
@@ -58,6 +61,9 @@ pub fn solve(
                     f += elasticity::force(c, a - nf, &ef.prl) + hourglass_force(c, ef, a - nf);
                 }
                 *b = m * vv[a] + c.dt * f;
+                if let Some(dv) = impulse {
+                    *b += m * dv[a];
+                }
             },
         );
     }
