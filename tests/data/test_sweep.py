@@ -38,6 +38,7 @@ from rmi_learn.data.sweep import (
     prefix_groups,
     run_sweep,
     validate_grid,
+    with_later_fields,
 )
 from rmi_learn.data.synthetic import simulate_toy_run
 
@@ -372,6 +373,19 @@ def test_resume_refuses_runs_of_another_engine_config(tmp_path: Path) -> None:
         sweep(make_config=other_engine_make_config)
     # Nothing was touched: the old runs stay as they were.
     assert {p: p.read_bytes() for p in (out / "runs").rglob("*.parquet")} == before
+
+
+def test_a_stored_config_without_later_fields_reads_as_their_defaults() -> None:
+    import rmi_sph
+
+    default = rmi_sph.default_config()
+    stored = json.loads(json.dumps(default))
+    del stored["pressure"]["single_solve"]
+    del stored["controller"]["perturbation"]
+    assert with_later_fields(stored, default) == default
+    # A stored value is kept: a run made with the option on stays different.
+    stored["pressure"]["single_solve"] = True
+    assert with_later_fields(stored, default)["pressure"]["single_solve"] is True
 
 
 def test_polars_queries_over_the_grid(tmp_path: Path) -> None:

@@ -332,9 +332,9 @@ def _configs_of(specs: list[RunSpec], make_config: Any) -> dict[str, dict[str, A
 
 
 #: Trial config fields added after runs were first stored, whose default reproduces what
-#: those runs did (``controller.perturbation`` is off by default): a stored config without
-#: them is compared as if it held the default.
-_LATER_FIELDS: tuple[str, ...] = ("controller.perturbation",)
+#: those runs did (``controller.perturbation`` and ``pressure.single_solve`` are off by
+#: default): a stored config without them is compared as if it held the default.
+_LATER_FIELDS: tuple[str, ...] = ("controller.perturbation", "pressure.single_solve")
 
 
 def _get_path(config: Mapping[str, Any], dotted: str) -> Any:
@@ -357,6 +357,14 @@ def _set_if_absent(config: dict[str, Any], dotted: str, value: Any) -> dict[str,
     if isinstance(node, dict) and last not in node:
         node[last] = json.loads(json.dumps(value))
     return out
+
+
+def with_later_fields(stored: dict[str, Any], default: Mapping[str, Any]) -> dict[str, Any]:
+    """``stored`` (a run's saved trial config) with each field of ``_LATER_FIELDS`` that it
+    lacks set to its value in ``default`` (the engine's default trial config)."""
+    for field_path in _LATER_FIELDS:
+        stored = _set_if_absent(stored, field_path, _get_path(default, field_path))
+    return stored
 
 
 def _differences(old: Any, new: Any, path: str = "") -> list[str]:
@@ -389,14 +397,11 @@ def check_stale(
 
     stale: list[tuple[str, list[str]]] = []
     default = rmi_sph.default_config()
-    added = {path: _get_path(default, path) for path in _LATER_FIELDS}
     for spec in specs:
         path = run_path(runs_root, spec.params)
         if not path.exists():
             continue
-        stored = read_run_meta(path)["config"]
-        for field_path, value in added.items():
-            stored = _set_if_absent(stored, field_path, value)
+        stored = with_later_fields(read_run_meta(path)["config"], default)
         diff = _differences(stored, json.loads(json.dumps(configs[spec.run_id])))
         if diff:
             stale.append((spec.run_id, diff))

@@ -12,8 +12,9 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 
-/// Format version written into every snapshot (3: a checksum follows the payload).
-pub const VERSION: u32 = 4;
+/// Format version written into every snapshot (3: a checksum follows the payload; 4: per-particle
+/// contact loads; 5: the config's `pressure.single_solve`).
+pub const VERSION: u32 = 5;
 const MAGIC: &[u8; 8] = b"RMISNAP\0";
 /// Bytes of the checksum after the payload.
 const SUM_LEN: usize = 8;

@@ -26,7 +26,7 @@ pub struct StepStats {
     /// Implicit non-pressure solve.
     pub cg: CgStats,
     /// Implicit response to the pressure impulse (zero iterations when
-    /// `pressure.drag_coupled` is off or there is no skeleton).
+    /// `pressure.drag_coupled` is off, under `pressure.single_solve`, or without a skeleton).
     pub pressure_response: CgStats,
     /// Implicit response that let held sticks slide whose force left the static cone only
     /// after the pressure response (zero iterations when none did; sticks that the implicit
@@ -258,7 +258,10 @@ impl Simulation {
         let ps = PressureSettings::from(&cfg.pressure);
         let coupled = cfg.pressure.drag_coupled && system.is_some() && self.p.n_solid() > 0 && nf > 0;
         // Buoyancy reads the previous step's pressure (before a single solve overwrites it).
-        let kappa_prev: Vec<f64> = self.kappa_dt2.iter().map(|k| k / (dt * dt)).collect();
+        let kappa_prev: Vec<f64> = match system {
+            Some(_) => self.kappa_dt2.iter().map(|k| k / (dt * dt)).collect(),
+            None => Vec::new(),
+        };
         // Single solve: the pressure first, on the velocities with gravity alone; its impulse
         // then joins the implicit solve's right-hand side.
         let mut solved_first = None;
