@@ -35,6 +35,11 @@ pub struct PressureSettings {
     pub warm_start: bool,
     /// Fraction of the previous pressure used as the warm start.
     pub warm_start_factor: f64,
+    /// Skip the skeleton's rows of the iterations while no skeleton particle carries pressure:
+    /// a compressible skeleton's own density stays below its rest value, so its kappa is zero
+    /// in nearly every scene and those rows sum nothing but zeros (the same bits either way;
+    /// `true` from a config).
+    pub skip_idle_skeleton: bool,
 }
 
 impl From<&crate::config::PressureConfig> for PressureSettings {
@@ -46,6 +51,7 @@ impl From<&crate::config::PressureConfig> for PressureSettings {
             omega: p.omega,
             warm_start: p.warm_start,
             warm_start_factor: p.warm_start_factor,
+            skip_idle_skeleton: true,
         }
     }
 }
@@ -207,25 +213,6 @@ pub fn solve(
     work: &mut PressureWork,
     n_materials: usize,
 ) -> (PressureStats, Vec<BodyLoad>) {
-    solve_with(c, dens, settings, rho0, v, kappa, kappa_dt2, work, n_materials, true)
-}
-
-/// [`solve`], with the skip of an idle skeleton's rows chosen (`skip_idle_skeleton`): a
-/// compressible skeleton's own density stays below its rest value, so its kappa is
-/// zero in nearly every scene and its rows of the iterations sum nothing but zeros.
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn solve_with(
-    c: &Ctx,
-    dens: &DensityFields,
-    settings: &PressureSettings,
-    rho0: &[f64],
-    v: &mut [Vector3<f64>],
-    kappa: &mut Vec<f64>,
-    kappa_dt2: &mut [f64],
-    work: &mut PressureWork,
-    n_materials: usize,
-    skip_idle_skeleton: bool,
-) -> (PressureStats, Vec<BodyLoad>) {
     let n = c.p.len();
     let dt = c.dt;
     let dt2 = dt * dt;
@@ -278,7 +265,7 @@ pub(crate) fn solve_with(
     // Whether any skeleton particle carries pressure: while none does, the skeleton's rows of
     // the iterations are exact zeros and are skipped (a sponge that is not compressed).
     let nf = c.p.n_fluid;
-    let live = |kappa: &[f64]| !skip_idle_skeleton || kappa[nf..].iter().any(|&k| k != 0.0);
+    let live = |kappa: &[f64]| !settings.skip_idle_skeleton || kappa[nf..].iter().any(|&k| k != 0.0);
     let mut solid_live = live(kappa);
     loop {
         {
@@ -409,7 +396,8 @@ mod tests {
                     kdt2.iter_mut().for_each(|k| *k = 0.0);
                 }
                 let mut kappa = Vec::new();
-                let (st, loads) = solve_with(
+                let ps = PressureSettings { skip_idle_skeleton: skip, ..ps };
+                let (st, loads) = solve(
                     c,
                     dens,
                     &ps,
@@ -419,7 +407,6 @@ mod tests {
                     &mut kdt2,
                     &mut PressureWork::default(),
                     1 + c.objects.len(),
-                    skip,
                 );
                 (st.iterations, st.error, loads, v, kappa, kdt2)
             };
