@@ -14,7 +14,9 @@ pub mod cpu;
 use rayon::prelude::*;
 
 /// Chunk length for reductions; fixed so that results are independent of the thread count.
-pub const REDUCE_CHUNK: usize = 2048;
+/// Short enough that a trial's sponge (about 1,800 particles at r = 5 mm) splits into several
+/// chunks: with one chunk per pass, a second thread had nothing to do.
+pub const REDUCE_CHUNK: usize = 256;
 
 /// Deterministic sum of `f(i)` for `i in 0..n`.
 pub fn sum<F>(n: usize, f: F) -> f64
@@ -107,8 +109,9 @@ where
     )
 }
 
-/// Chunk length of [`for_each_hot`] (fixed, so the split never depends on the thread count).
-pub const HOT_CHUNK: usize = 1024;
+/// Chunk length of [`for_each_hot`] (fixed, so the split never depends on the thread count;
+/// equal to [`REDUCE_CHUNK`] for the same reason as it).
+pub const HOT_CHUNK: usize = 256;
 
 /// Calls `f(i, &mut out[i])` for every element in parallel, each chunk through
 /// [`crate::cpu::hot`] so that per-particle loops get the AVX2 copy. Pass `f` marked
