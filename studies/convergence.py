@@ -22,6 +22,11 @@ owns a thread pool per trial), the most expensive first.
         --dts 0.001 0.002 --jobs 1 --threads 2
     python studies/convergence.py table results/convergence [--tolerance 0.05] [--json]
 
+The controller's contact debounce, slip-out count and gate count are in simulator steps and
+its load filter acts per step (as the paper states them), so by default each dt also runs a
+controller with other time constants; ``--controller-dt 0.002`` holds them at the times they
+span at dt = 2 ms, so that only the engine's time step differs.
+
 Running needs only ``rmi_sph`` (no polars, no torch): the series can run on any machine that
 imports the module.
 """
@@ -90,11 +95,31 @@ def observables(outcome: dict[str, Any], columns: dict[str, Any]) -> dict[str, A
     }
 
 
+#: The controller's and the gate's parameters counted in simulator steps (section, field).
+STEP_COUNTS = (("controller", "k_contact"), ("controller", "k_lost"), ("gate", "k_stable"))
+
+
+def hold_controller_times(cfg: dict[str, Any], dt_ref: float) -> dict[str, Any]:
+    """``cfg`` (a trial config) with the controller's step counts and the gate's per-step load
+    filter rescaled to span, at ``cfg["dt"]``, the times they span at ``dt_ref`` (s): each count
+    times ``dt_ref / dt`` (rounded, at least 1), and ``eta_f`` such that the filter's decay per
+    second is the same. As configured, a trial at another dt runs a controller with other time
+    constants as well as another time step."""
+    scale = dt_ref / float(cfg["dt"])
+    out = json.loads(json.dumps(cfg))
+    if scale == 1.0:
+        return out
+    for section, field in STEP_COUNTS:
+        out[section][field] = max(1, round(cfg[section][field] * scale))
+    out["gate"]["eta_f"] = 1.0 - (1.0 - cfg["gate"]["eta_f"]) ** (1.0 / scale)
+    return out
+
+
 def config_of(job: dict[str, Any]) -> dict[str, Any]:
     """The trial config of one job of the series (the engine validates it)."""
     import rmi_sph
 
-    return dict(
+    cfg = dict(
         rmi_sph.trial_config(
             job["size_cm"],
             job["porosity"],
@@ -106,6 +131,9 @@ def config_of(job: dict[str, Any]) -> dict[str, Any]:
             **job["timings"],
         )
     )
+    if job.get("controller_dt_s"):
+        cfg = hold_controller_times(cfg, job["controller_dt_s"])
+    return cfg
 
 
 def _run_one(job: dict[str, Any]) -> dict[str, Any]:
@@ -144,6 +172,7 @@ def run(args: argparse.Namespace) -> int:
         "timings_preset": args.timings,
         "timings": timings(args.timings),
         "threads": args.threads,
+        "controller_dt_s": args.controller_dt,
     }
     jobs = []
     for size in args.sizes:
@@ -288,6 +317,15 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--timings", default="paper", help="grid preset whose phase timings to use")
     r.add_argument("--jobs", type=int, default=1, help="trials at a time")
     r.add_argument("--threads", type=int, default=2, help="engine threads per trial")
+    r.add_argument(
+        "--controller-dt",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="hold the controller's step counts and its per-step load filter at the times they "
+        "span at this time step, so that only the engine's time step differs between dts "
+        "(default: as configured, in steps)",
+    )
     t = sub.add_parser("table", help="tabulate a series and its converged radius")
     t.add_argument("out", help="series directory")
     t.add_argument(
@@ -301,6 +339,8 @@ def main(argv: list[str] | None = None) -> int:
                 raise ValueError("--jobs and --threads: expected integers >= 1")
             if any(not (0.5 <= x <= 20.0) for x in a.radii):
                 raise ValueError("--radii: expected particle radii in [0.5, 20] mm")
+            if a.controller_dt is not None and not (1e-5 <= a.controller_dt <= 0.1):
+                raise ValueError(f"--controller-dt: {a.controller_dt} s is not in [1e-5, 0.1] s")
             return run(a)
         if not 0.0 < a.tolerance < 1.0:
             raise ValueError(f"--tolerance: {a.tolerance} is not in (0, 1)")

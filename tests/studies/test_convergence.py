@@ -115,3 +115,38 @@ def test_table_cli_reads_a_series_directory(
     assert m.main(["table", str(tmp_path), "--tolerance", "1.5"]) == 2
     assert "--tolerance" in capsys.readouterr().err
     assert m.main(["run", "--out", str(tmp_path), "--radii", "0.1"]) == 2
+
+
+def test_controller_times_are_held_across_time_steps() -> None:
+    m = load_study("convergence")
+    job = {
+        "size_cm": 8,
+        "porosity": 0.6,
+        "hold_N": 100.0,
+        "squeeze_N": 300.0,
+        "radius_mm": 8.0,
+        "seed": 0,
+        "timings": {},
+    }
+    as_configured = m.config_of({**job, "dt_s": 0.002})
+    same = m.config_of({**job, "dt_s": 0.002, "controller_dt_s": 0.002})
+    assert same == as_configured
+    fine = m.config_of({**job, "dt_s": 0.001, "controller_dt_s": 0.002})
+    for section, field in m.STEP_COUNTS:
+        assert fine[section][field] == 2 * as_configured[section][field], field
+    # The filter's decay over 2 ms: one step of the configured eta, two of the rescaled one.
+    eta, eta_fine = as_configured["gate"]["eta_f"], fine["gate"]["eta_f"]
+    assert (1.0 - eta_fine) ** 2 == pytest.approx(1.0 - eta, rel=1e-12)
+    coarse = m.config_of({**job, "dt_s": 0.008, "controller_dt_s": 0.002})
+    assert coarse["controller"]["k_contact"] == max(
+        1, round(as_configured["controller"]["k_contact"] / 4)
+    )
+    import rmi_sph
+
+    rmi_sph.validate_config(fine)
+
+
+def test_a_controller_dt_out_of_range_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    m = load_study("convergence")
+    assert m.main(["run", "--out", "/nonexistent/x", "--controller-dt", "0"]) != 0
+    assert "--controller-dt" in capsys.readouterr().err
