@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
+import copy
 import json
 import math
 import multiprocessing
@@ -106,7 +107,7 @@ def hold_controller_times(cfg: dict[str, Any], dt_ref: float) -> dict[str, Any]:
     second is the same. As configured, a trial at another dt runs a controller with other time
     constants as well as another time step."""
     scale = dt_ref / float(cfg["dt"])
-    out = json.loads(json.dumps(cfg))
+    out = copy.deepcopy(cfg)
     if scale == 1.0:
         return out
     for section, field in STEP_COUNTS:

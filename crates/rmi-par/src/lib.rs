@@ -109,9 +109,9 @@ where
     )
 }
 
-/// Chunk length of [`for_each_hot`] (fixed, so the split never depends on the thread count;
-/// equal to [`REDUCE_CHUNK`] for the same reason as it).
-pub const HOT_CHUNK: usize = 256;
+/// Chunk length of [`for_each_hot`] (fixed, so the split never depends on the thread count);
+/// [`REDUCE_CHUNK`], for the same reason.
+pub const HOT_CHUNK: usize = REDUCE_CHUNK;
 
 /// Calls `f(i, &mut out[i])` for every element in parallel, each chunk through
 /// [`crate::cpu::hot`] so that per-particle loops get the AVX2 copy. Pass `f` marked
