@@ -13,8 +13,9 @@ use serde::{Deserialize, Serialize};
 use std::io::Write;
 
 /// Format version written into every snapshot (3: a checksum follows the payload; 4: per-particle
-/// contact loads; 5: the config's `pressure.single_solve`).
-pub const VERSION: u32 = 5;
+/// contact loads; 5: the config's `pressure.single_solve`; 6: `response_prev` holds the last
+/// pressure response itself, no longer its drag correction).
+pub const VERSION: u32 = 6;
 const MAGIC: &[u8; 8] = b"RMISNAP\0";
 /// Bytes of the checksum after the payload.
 const SUM_LEN: usize = 8;
@@ -68,7 +69,7 @@ pub struct Snapshot {
     pub kappa_dt2: Vec<f64>,
     /// Velocity change of the last implicit solve (warm start).
     pub dv_prev: Vec<Vector3<f64>>,
-    /// Drag correction of the last pressure response (warm start).
+    /// The last pressure response (m/s; the next one's initial guess).
     pub response_prev: Vec<Vector3<f64>>,
     /// Per skeleton particle, the normal force (N) of its body contact in the last step;
     /// zero where it had none or the contact did not push.

@@ -74,7 +74,7 @@ pub struct Simulation {
     pub(crate) kappa: Vec<f64>,
     pub(crate) kappa_dt2: Vec<f64>,
     pub(crate) dv_prev: Vec<Vector3<f64>>,
-    /// Drag correction of the last pressure response (m/s; its warm start).
+    /// The last pressure response (m/s; the next one's initial guess).
     pub(crate) response_prev: Vec<Vector3<f64>>,
     acc: Vec<Vector3<f64>>,
     rho0: Vec<f64>,

@@ -85,13 +85,13 @@ pub fn solve(
 /// Implicit response of the coupled system to a velocity increment `dv` (m/s), such as the
 /// pressure solve's: solves `A x = m dv` with the system of [`solve`] (viscosity, drag,
 /// adhesion, linearised elasticity, the same contact constraints held; `w` sized by
-/// [`solve`]), and writes x into `dv`. `correction_prev` holds the previous response's
-/// x - dv, the warm start (m/s), and is updated on exit (`None`: no warm start). Because
-/// `A` is linear, the step's velocity v* + x equals the implicit solve with the pressure
-/// force on its right-hand side. Returns the statistics and, per constraint, the impulse
-/// (N s) it exerted to hold its components against the increment; what the increment
-/// pushes into a body must reach that body's load. The tolerance is relative to the larger
-/// of the right-hand side's norm and `rhs_floor` (N s; see [`pcg`]).
+/// [`solve`]), and writes x into `dv`. `previous` holds the last response of the same kind
+/// (m/s), the initial guess, and is updated to x on exit; without it the guess is zero.
+/// Because `A` is linear, the step's velocity v* + x equals the implicit solve with the
+/// pressure force on its right-hand side. Returns the statistics and, per constraint, the
+/// impulse (N s) it exerted to hold its components against the increment; what the
+/// increment pushes into a body must reach that body's load. The tolerance is relative to
+/// the larger of the right-hand side's norm and `rhs_floor` (N s; see [`pcg`]).
 ///
 /// The pressure solve moves water as if it were free; through a sponge's pores the drag
 /// takes most of that impulse within the same step and the skeleton's elasticity carries
@@ -100,7 +100,7 @@ pub fn solve(
 pub fn pressure_response(
     op: &Op,
     dv: &mut [Vector3<f64>],
-    correction_prev: Option<&mut [Vector3<f64>]>,
+    previous: Option<&mut [Vector3<f64>]>,
     w: &mut CgWork,
     rhs_floor: f64,
 ) -> (CgStats, Vec<Vector3<f64>>) {
@@ -117,26 +117,72 @@ pub fn pressure_response(
     // filtered; the right-hand side is not, so that the constraint's impulse includes the
     // part of the increment it cancels on its own particle).
     w.b.par_iter_mut().enumerate().for_each(|(a, b)| *b = c.p.mass[a] * dv[a]);
-    let hold = |x: &mut [Vector3<f64>]| {
-        for a in nf..c.p.len() {
-            if c.rest.fixed[a - nf] {
-                x[a] = Vector3::zeros();
-            }
-        }
-        filter(x, &op.filters);
-    };
-    hold(dv);
-    // Warm start: the drag takes back about the same share of the pressure impulse from step
-    // to step, so the last step's correction x - dv is a close guess; water away from the
-    // skeleton (rows `m x = m dv`) has none.
-    let dv_in: Vec<Vector3<f64>> = dv.to_vec();
-    if let (true, Some(prev)) = (op.s.warm_start, correction_prev.as_deref()) {
-        dv.par_iter_mut().zip(prev.par_iter()).for_each(|(x, k)| *x += k);
-        hold(dv);
+    // The guess. The pressure impulse changes little from step to step, and so does the
+    // velocity it leaves once drag and elasticity have answered it: the last response leaves
+    // a residual of the order of the solve's tolerance. The increment itself would be a poor
+    // guess: its residual `dt F_lin(dv)` is the drag's whole reaction, larger than the
+    // right-hand side. Zero leaves the right-hand side itself.
+    match (op.s.warm_start, previous.as_deref()) {
+        (true, Some(prev)) => dv.par_iter_mut().zip(prev.par_iter()).for_each(|(x, p)| *x = *p),
+        _ => dv.par_iter_mut().for_each(|x| *x = Vector3::zeros()),
     }
+    for a in nf..c.p.len() {
+        if c.rest.fixed[a - nf] {
+            dv[a] = Vector3::zeros();
+        }
+    }
+    filter(dv, &op.filters);
     let stats = pcg(op, dv, w, op.s.tolerance, op.s.max_iterations, rhs_floor);
-    if let Some(prev) = correction_prev {
-        prev.par_iter_mut().zip(dv.par_iter().zip(dv_in.par_iter())).for_each(|(k, (x, d))| *k = x - d);
+    if let Some(prev) = previous {
+        prev.par_iter_mut().zip(dv.par_iter()).for_each(|(p, x)| *p = *x);
     }
     (stats, constraint_impulses(op, dv, w))
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::config::{BodyConfig, Shape};
+    use crate::{presets, Simulation};
+    use nalgebra::Vector3;
+
+    /// A sponge with pore water on the floor, pressed by a plate from above at 2 cm/s (its
+    /// contacts constraints of the implicit system): a step's pressure response is close to
+    /// the last one's, so starting from it saves most of the CG's iterations, and the step ends
+    /// where a response solved from zero ends. Over these 150 steps the response from zero
+    /// took 2,257 iterations, from the last response 483; the guess this one replaced (the
+    /// increment plus the last drag correction) 745.
+    #[test]
+    fn pressure_response_starts_from_the_last_one() {
+        let mut cfg = presets::sponge([0.06, 0.06, 0.1], 0.6, 0.005);
+        cfg.scene.bodies.push(BodyConfig {
+            name: "plate".into(),
+            shape: Shape::Box { half_extents: [0.05, 0.05, 0.01] },
+            position: [0.0, 0.0, 0.1 + 0.01],
+            rotation: [0.0; 3],
+            kinematic: true,
+        });
+        let mut warm = Simulation::new(cfg.clone(), Some(2)).unwrap();
+        warm.set_body_velocity(1, Vector3::new(0.0, 0.0, -0.02), Vector3::zeros()).unwrap();
+        warm.run(100).unwrap();
+        assert!(warm.contacts().len() > 40, "{} contacts: the plate must press", warm.contacts().len());
+        let mut cold = Simulation::new(cfg, Some(2)).unwrap();
+        let (mut iw, mut ic) = (0, 0);
+        let norm = |v: &mut dyn Iterator<Item = f64>| v.sum::<f64>().sqrt();
+        for _ in 0..150 {
+            cold.restore(warm.snapshot()).unwrap();
+            assert!(warm.response_prev.iter().any(|x| x.norm() > 0.0), "the sponge's water must respond");
+            cold.response_prev.iter_mut().for_each(|x| *x = Vector3::zeros());
+            warm.step().unwrap();
+            cold.step().unwrap();
+            iw += warm.stats().pressure_response.iterations;
+            ic += cold.stats().pressure_response.iterations;
+            let (vw, vc) = (&warm.particles().v, &cold.particles().v);
+            let diff = norm(&mut vw.iter().zip(vc).map(|(a, b)| (a - b).norm_squared()));
+            let size = norm(&mut vc.iter().map(|a| a.norm_squared()));
+            // Both stop at a relative residual of 3e-3; the constraints' stiffness magnifies
+            // that in the velocities (up to 4.7 % here).
+            assert!(diff < 0.1 * size, "velocities differ by {diff} of {size} m/s (L2 norms)");
+        }
+        assert!(7 * iw <= 2 * ic, "150 steps: from the last response {iw} iterations, from zero {ic}");
+    }
 }
