@@ -349,12 +349,17 @@ impl Trial {
     /// water; what its pores lose since ([`Simulation::pore_water`]) is expelled:
     /// `M_L = total - clamp(P0 - P, 0, total)`. (The sampled pore water and the pores' nominal
     /// volume differ by the lattice's rounding, a few per cent, so the pores' water is
-    /// counted by its change, in physical units.)
-    fn retained(&self) -> (f64, f64) {
-        let p = self.sim.particles();
-        let total: f64 = p.mass[..p.n_fluid].iter().sum();
-        let lost = (self.layer.pore_water0 - self.sim.pore_water(0)).clamp(0.0, total);
+    /// counted by its change, in physical units.) `pore_water` (kg) is the pores' water now.
+    fn retained(&self, pore_water: f64) -> (f64, f64) {
+        let total = self.total_water();
+        let lost = (self.layer.pore_water0 - pore_water).clamp(0.0, total);
         (total - lost, total)
+    }
+
+    /// The liquid's mass (kg).
+    fn total_water(&self) -> f64 {
+        let p = self.sim.particles();
+        p.mass[..p.n_fluid].iter().sum()
     }
 
     /// The observation after a step with these friction records, and the sponge's centre of
@@ -363,8 +368,10 @@ impl Trial {
         let b = self.sim.boundary();
         let (f_l, f_r) = self.gripper.loads(b);
         let s = summarise(records, self.gripper.left, self.gripper.right);
-        let (m_l, total) = self.retained();
+        // One pass over the skeleton for both: the pores' water is `rho_f V_pore S`
+        // ([`Simulation::pore_water`]).
         let (v_sponge, v_pore, sat) = self.sim.sponge_volumes(0);
+        let (m_l, total) = self.retained(self.sim.config().fluid.density * v_pore * sat);
         let (_, com, v_com) = self.sim.object_motion(0);
         let d = 2.0 * self.cfg.particle_radius;
         let c = &self.layer.controller;
@@ -527,7 +534,7 @@ impl Trial {
     pub fn outcome(&self, wall_s: f64) -> Outcome {
         let c = &self.layer.controller;
         let reached = |ph: Phase| self.layer.phase_water.iter().any(|(p, _)| *p == ph);
-        let (_, total) = self.retained();
+        let total = self.total_water();
         Outcome {
             lift_success: reached(Phase::Squeeze),
             stable_squeeze: self.finished() && c.failure.is_none(),

@@ -7,6 +7,7 @@ use crate::neighbourhood::lists::NeighbourLists;
 use crate::solver::{elasticity, implicit};
 use crate::world::retention;
 use nalgebra::Vector3;
+use rayon::prelude::*;
 
 impl Simulation {
     /// Force (N) that skeleton particles exerted on body `bi` through their normal contacts
@@ -83,10 +84,16 @@ impl Simulation {
         let v0 = self.volume();
         let (mut vs, mut vp, mut sw) = (0.0, 0.0, 0.0);
         let nf = self.p.n_fluid;
-        for a in o.range.clone() {
+        // The volume ratios in parallel (a deformation gradient each), summed in order.
+        let ratios: Vec<f64> = o
+            .range
+            .clone()
+            .into_par_iter()
+            .map(|a| elasticity::volume_ratio(&self.rest, &self.p.x, nf, a - nf))
+            .collect();
+        for (a, j) in o.range.clone().zip(ratios) {
             // The solid volume (1 - phi) v0 does not change; a particle compressed below it
             // (J < 1 - phi, never seen) keeps no pore volume.
-            let j = elasticity::volume_ratio(&self.rest, &self.p.x, nf, a - nf);
             let vol = v0 * j.max(1.0 - phi);
             let cur = 1.0 - v0 * (1.0 - phi) / vol;
             vs += vol;

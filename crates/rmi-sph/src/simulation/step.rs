@@ -171,7 +171,7 @@ impl Simulation {
         let cfg = &self.cfg;
         let ctx = Ctx::new(&self.p, &self.nb, &self.nbb, &self.bnd, &self.objects, &self.rest, &self.kernel, cfg);
         density::compute(&ctx, &mut self.dens);
-        elasticity::rotations(&ctx, &mut self.solid.rotation);
+        elasticity::rotations(&ctx, &mut self.solid.rotation, &mut self.ef.ftil);
         elasticity::prepare(&ctx, &self.solid.rotation, &self.dens.saturation, &mut self.ef);
         let nps = nonpressure_settings(cfg);
         let detected =
@@ -235,7 +235,7 @@ impl Simulation {
         std::mem::swap(&mut self.dens, &mut self.dens_last);
         density::compute(&ctx, &mut self.dens);
         if self.p.n_solid() > 0 {
-            elasticity::rotations(&ctx, &mut self.solid.rotation);
+            elasticity::rotations(&ctx, &mut self.solid.rotation, &mut self.ef.ftil);
             elasticity::prepare(&ctx, &self.solid.rotation, &self.dens.saturation, &mut self.ef);
         }
         let t2 = Instant::now();

@@ -24,38 +24,42 @@ pub struct ElasticFields {
     pub moduli: Vec<(f64, f64)>,
 }
 
-/// Extracts the rotation of each skeleton particle (Müller et al. 2016), warm-started.
-pub fn rotations(c: &Ctx, rot: &mut [UnitQuaternion<f64>]) {
+/// Extracts the rotation of each skeleton particle (Müller et al. 2016), warm-started, from
+/// its corrected deformation gradient, which it leaves in `ftil` for [`prepare`].
+pub fn rotations(c: &Ctx, rot: &mut [UnitQuaternion<f64>], ftil: &mut Vec<Matrix3<f64>>) {
     let nf = c.p.n_fluid;
     let x = &c.p.x;
     let rest = c.rest;
-    rmi_par::for_each_hot(
+    ftil.resize(rot.len(), Matrix3::zeros());
+    rmi_par::for_each_hot2(
         rot,
+        ftil,
         #[inline(always)]
-        |s, q| {
-            let a = nf + s;
-            let mut f = Matrix3::zeros();
-            for e in rest.start[s] as usize..rest.start[s + 1] as usize {
-                let r = rest.nbr[e] as usize;
-                f += rest.v0[r - nf] * (x[r] - x[a]) * (rest.l[s] * rest.grad0[e]).transpose();
-            }
-            *q = extract_rotation(&f, *q, 10);
+        |s, q, f| {
+            *f = deformation_gradient(rest, x, nf, s);
+            *q = extract_rotation(f, *q, 10);
         },
     );
 }
 
-/// Volume ratio `J = det F` of skeleton particle `s` (solid index) at positions `x` (by
-/// dynamic index; `nf` fluid particles first), with `F = sum_r V_r0 (x_r - x_s) (x) L_s grad
-/// W0_sr` the corrected deformation gradient: exact for affine motion, at faces too, where
-/// kernel sums are truncated.
-#[inline]
-pub fn volume_ratio(rest: &SolidRest, x: &[Vector3<f64>], nf: usize, s: usize) -> f64 {
+/// The corrected deformation gradient `F = sum_r V_r0 (x_r - x_s) (x) L_s grad W0_sr` of
+/// skeleton particle `s` (solid index) at positions `x` (by dynamic index; `nf` fluid
+/// particles first): exact for affine motion, at faces too, where kernel sums are truncated.
+#[inline(always)]
+fn deformation_gradient(rest: &SolidRest, x: &[Vector3<f64>], nf: usize, s: usize) -> Matrix3<f64> {
     let mut f = Matrix3::zeros();
     for e in rest.start[s] as usize..rest.start[s + 1] as usize {
         let r = rest.nbr[e] as usize;
         f += rest.v0[r - nf] * (x[r] - x[nf + s]) * (rest.l[s] * rest.grad0[e]).transpose();
     }
-    f.determinant()
+    f
+}
+
+/// Volume ratio `J = det F` of skeleton particle `s` (solid index) at positions `x` (by
+/// dynamic index; `nf` fluid particles first), `F` the corrected deformation gradient.
+#[inline]
+pub fn volume_ratio(rest: &SolidRest, x: &[Vector3<f64>], nf: usize, s: usize) -> f64 {
+    deformation_gradient(rest, x, nf, s).determinant()
 }
 
 /// Iterative rotation extraction from a deformation matrix, starting at `q`.
@@ -95,7 +99,8 @@ pub(crate) fn stress(grad: &Matrix3<f64>, mu: f64, lam: f64, bloat: f64) -> Matr
     2.0 * mu * eps + Matrix3::from_diagonal_element(lam * eps.trace() - bloat)
 }
 
-/// Computes R L, the explicit stress term P R L at the current positions, and G_s.
+/// Computes R L, the explicit stress term P R L at the current positions, and G_s; `out.ftil`
+/// holds the deformation gradients [`rotations`] left there.
 pub fn prepare(c: &Ctx, rot: &[UnitQuaternion<f64>], saturation: &[f64], out: &mut ElasticFields) {
     let nf = c.p.n_fluid;
     let ns = c.p.n_solid();
@@ -104,9 +109,9 @@ pub fn prepare(c: &Ctx, rot: &[UnitQuaternion<f64>], saturation: &[f64], out: &m
     out.rl.resize(ns, Matrix3::zeros());
     out.rl.par_iter_mut().enumerate().for_each(|(s, rl)| *rl = rot[s].to_rotation_matrix().matrix() * rest.l[s]);
     let rl = &out.rl;
-    // Per solid: P R L, G_s, F~ and the moduli.
-    type Row = (Matrix3<f64>, Vector3<f64>, Matrix3<f64>, (f64, f64));
-    let mut rows: Vec<Row> = vec![(Matrix3::zeros(), Vector3::zeros(), Matrix3::zeros(), (0.0, 0.0)); ns];
+    // Per solid: P R L, G_s and the moduli.
+    type Row = (Matrix3<f64>, Vector3<f64>, (f64, f64));
+    let mut rows: Vec<Row> = vec![(Matrix3::zeros(), Vector3::zeros(), (0.0, 0.0)); ns];
     rmi_par::for_each_hot(
         &mut rows,
         #[inline(always)]
@@ -115,10 +120,8 @@ pub fn prepare(c: &Ctx, rot: &[UnitQuaternion<f64>], saturation: &[f64], out: &m
             let rs = rot[s].to_rotation_matrix();
             let mut grad = Matrix3::zeros();
             let mut gsum = Vector3::zeros();
-            let mut ftil = Matrix3::zeros();
             for e in rest.start[s] as usize..rest.start[s + 1] as usize {
                 let r = rest.nbr[e] as usize;
-                ftil += rest.v0[r - nf] * (x[r] - x[a]) * (rest.l[s] * rest.grad0[e]).transpose();
                 let g = rl[s] * rest.grad0[e];
                 let u = (x[r] - x[a]) - rs * (rest.x0[r - nf] - rest.x0[s]);
                 grad += rest.v0[r - nf] * u * g.transpose();
@@ -128,17 +131,15 @@ pub fn prepare(c: &Ctx, rot: &[UnitQuaternion<f64>], saturation: &[f64], out: &m
             let (mu, lam) = moduli(c, a, sat);
             let o = c.object(a);
             let bloat = o.lambda * o.material.bloating * sat;
-            *row = (stress(&grad, mu, lam, bloat) * rl[s], gsum, ftil, (mu, lam));
+            *row = (stress(&grad, mu, lam, bloat) * rl[s], gsum, (mu, lam));
         },
     );
     out.prl.clear();
     out.gsum.clear();
-    out.ftil.clear();
     out.moduli.clear();
-    for (p, g, f, m) in rows {
+    for (p, g, m) in rows {
         out.prl.push(p);
         out.gsum.push(g);
-        out.ftil.push(f);
         out.moduli.push(m);
     }
 }

@@ -212,18 +212,18 @@ impl<'a> Op<'a> {
                     for a in lo..(lo + CHUNK).min(n) {
                         let (_, start, _) = c.nb.span(a);
                         let nb = c.nb.of(a);
-                        let xa = c.p.x[a];
                         for k in 0..nb.j.len() {
                             let b = nb.j[k] as usize;
-                            let d = (xa - c.p.x[b]).norm_squared();
-                            let r2 = d + this.eps_h;
+                            // The lists were built at the current positions: their offsets and
+                            // gradient factors are this step's.
+                            let (xab, gf) = nb.d_and_gf(k);
+                            let r2 = xab.norm_squared() + this.eps_h;
                             // grad W = g(|x|) x: the pair term lap (y_ab . x_ab) grad W is stored as
                             // lap g (y_ab . x_ab) x_ab, so the CG passes need no gradient per pair.
-                            let gf = || c.kernel.grad_factor(d.sqrt());
                             out[start + k] = match (a < c.p.n_fluid, k < nb.n_fluid) {
-                                (true, true) if this.implicit_visc => [this.viscosity(a, b) / r2 * gf(), 0.0],
-                                (true, false) => [this.drag(a, b) / r2 * gf(), this.adhesion(a, b, nb.w[k])],
-                                (false, true) => [this.drag(b, a) / r2 * gf(), this.adhesion(b, a, nb.w[k])],
+                                (true, true) if this.implicit_visc => [this.viscosity(a, b) / r2 * gf, 0.0],
+                                (true, false) => [this.drag(a, b) / r2 * gf, this.adhesion(a, b, nb.w[k])],
+                                (false, true) => [this.drag(b, a) / r2 * gf, this.adhesion(b, a, nb.w[k])],
                                 _ => [0.0, 0.0],
                             };
                         }
