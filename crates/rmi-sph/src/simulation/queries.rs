@@ -84,13 +84,15 @@ impl Simulation {
         let v0 = self.volume();
         let (mut vs, mut vp, mut sw) = (0.0, 0.0, 0.0);
         let nf = self.p.n_fluid;
-        // The volume ratios in parallel (a deformation gradient each), summed in order.
-        let ratios: Vec<f64> = o
-            .range
-            .clone()
-            .into_par_iter()
-            .map(|a| elasticity::volume_ratio(&self.rest, &self.p.x, nf, a - nf))
-            .collect();
+        // The volume ratios in parallel (a deformation gradient each), summed in order; in the
+        // simulation's pool, as every parallel pass (a forked process has no global one).
+        let ratios: Vec<f64> = self.pool.install(|| {
+            o.range
+                .clone()
+                .into_par_iter()
+                .map(|a| elasticity::volume_ratio(&self.rest, &self.p.x, nf, a - nf))
+                .collect()
+        });
         for (a, j) in o.range.clone().zip(ratios) {
             // The solid volume (1 - phi) v0 does not change; a particle compressed below it
             // (J < 1 - phi, never seen) keeps no pore volume.
