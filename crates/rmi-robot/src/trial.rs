@@ -368,10 +368,9 @@ impl Trial {
         let b = self.sim.boundary();
         let (f_l, f_r) = self.gripper.loads(b);
         let s = summarise(records, self.gripper.left, self.gripper.right);
-        // One pass over the skeleton for both: the pores' water is `rho_f V_pore S`
-        // ([`Simulation::pore_water`]).
+        // One pass over the skeleton for the volumes and the pores' water.
         let (v_sponge, v_pore, sat) = self.sim.sponge_volumes(0);
-        let (m_l, total) = self.retained(self.sim.config().fluid.density * v_pore * sat);
+        let (m_l, total) = self.retained(self.sim.pore_water_of(v_pore, sat));
         let (_, com, v_com) = self.sim.object_motion(0);
         let d = 2.0 * self.cfg.particle_radius;
         let c = &self.layer.controller;

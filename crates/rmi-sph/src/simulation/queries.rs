@@ -118,6 +118,13 @@ impl Simulation {
     /// 7 % at r = 2.5 mm by both counts, but only this one holds at r = 5 mm (validation).
     pub fn pore_water(&self, k: usize) -> f64 {
         let (_, v_pore, saturation) = self.sponge_volumes(k);
+        self.pore_water_of(v_pore, saturation)
+    }
+
+    /// [`Simulation::pore_water`] from a pore volume (m^3) and its saturation, as
+    /// [`Simulation::sponge_volumes`] returns them (kg): for callers that need both, so that
+    /// the skeleton is summed once.
+    pub fn pore_water_of(&self, v_pore: f64, saturation: f64) -> f64 {
         self.cfg.fluid.density * v_pore * saturation
     }
 

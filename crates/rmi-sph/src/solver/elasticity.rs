@@ -106,6 +106,7 @@ pub fn prepare(c: &Ctx, rot: &[UnitQuaternion<f64>], saturation: &[f64], out: &m
     let ns = c.p.n_solid();
     let rest = c.rest;
     let x = &c.p.x;
+    debug_assert_eq!(out.ftil.len(), ns, "rotations() leaves the deformation gradients first");
     out.rl.resize(ns, Matrix3::zeros());
     out.rl.par_iter_mut().enumerate().for_each(|(s, rl)| *rl = rot[s].to_rotation_matrix().matrix() * rest.l[s]);
     let rl = &out.rl;
