@@ -99,7 +99,7 @@ pub fn coupling_forces(c: &Ctx, dens: &DensityFields, v: &[Vector3<f64>]) -> Vec
     };
     let ef = ElasticFields::default();
     let op = Op::new(c, dens, &ef, &s, Vec::new());
-    (0..c.p.len()).into_par_iter().map(|a| op.pair_forces(a, v) + op.adhesion_position_force(a)).collect()
+    (0..c.p.len()).into_par_iter().map(|a| op.pair_forces(a, v) + op.adhesion_force[a]).collect()
 }
 
 /// Buoyancy force (N) on each skeleton particle from the pressure `kappa` (docs/physics.md §3.3).

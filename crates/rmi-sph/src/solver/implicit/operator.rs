@@ -67,6 +67,9 @@ pub struct Op<'a> {
     pub(super) filters: Vec<Filter>,
     /// Inverted preconditioner blocks.
     pub(super) minv: Vec<Matrix3<f64>>,
+    /// Position part of adhesion per particle, `-sum c_ab (x_a - x_b)` (N): a term of the
+    /// implicit solve's right-hand side.
+    pub(super) adhesion_force: Vec<Vector3<f64>>,
     /// Coarse level of the two-level preconditioner.
     pub(super) coarse: Option<TwoLevel>,
 }
@@ -97,10 +100,10 @@ impl<'a> Op<'a> {
             filters: constraint_field(c.p.len(), &constraints),
             constraints,
             minv: Vec::new(),
+            adhesion_force: Vec::new(),
             coarse: None,
         };
-        op.fill_coefficients();
-        op.minv = op.preconditioner();
+        op.fill();
         let two_level = match s.preconditioner {
             Preconditioner::TwoLevel => true,
             Preconditioner::Auto => c.rest.fixed.iter().filter(|f| !**f).count() >= TWO_LEVEL_MIN_SOLIDS,
@@ -197,41 +200,76 @@ impl<'a> Op<'a> {
             nb.n_fluid..nb.j.len()
         }
     }
-    /// Fills the per-pair coefficient cache (once per step; the operator runs every CG pass).
-    fn fill_coefficients(&mut self) {
+    /// Fills the per-pair coefficient cache (once per step; the operator runs every CG pass)
+    /// and, with each particle's coefficients while its pairs are in cache, its
+    /// preconditioner block and the position part of its adhesion: one pass over the pairs.
+    fn fill(&mut self) {
         let c = self.c;
-        let sizes = c.nb.chunk_pairs();
         let n = c.p.len();
-        let mut coef: Vec<Vec<[f64; 2]>> = sizes.iter().map(|&m| vec![[0.0; 2]; m]).collect();
+        let sizes = c.nb.chunk_pairs();
+        let factors = PairFactors::new(self);
+        let mut minv = vec![Matrix3::zeros(); n];
+        let mut adhesion_force = vec![Vector3::zeros(); n];
         let this: &Op = self;
-        coef.par_iter_mut().enumerate().for_each(|(ci, out)| {
-            let lo = ci * CHUNK;
-            rmi_par::cpu::hot(
-                #[inline(always)]
-                || {
-                    for a in lo..(lo + CHUNK).min(n) {
-                        let (_, start, _) = c.nb.span(a);
-                        let nb = c.nb.of(a);
-                        for k in 0..nb.j.len() {
-                            let b = nb.j[k] as usize;
-                            // The lists were built at the current positions: their offsets and
-                            // gradient factors are this step's.
-                            let (xab, gf) = nb.d_and_gf(k);
-                            let r2 = xab.norm_squared() + this.eps_h;
-                            // grad W = g(|x|) x: the pair term lap (y_ab . x_ab) grad W is stored as
-                            // lap g (y_ab . x_ab) x_ab, so the CG passes need no gradient per pair.
-                            out[start + k] = match (a < c.p.n_fluid, k < nb.n_fluid) {
-                                (true, true) if this.implicit_visc => [this.viscosity(a, b) / r2 * gf, 0.0],
-                                (true, false) => [this.drag(a, b) / r2 * gf, this.adhesion(a, b, nb.w[k])],
-                                (false, true) => [this.drag(b, a) / r2 * gf, this.adhesion(b, a, nb.w[k])],
-                                _ => [0.0, 0.0],
-                            };
+        let coef: Vec<Vec<[f64; 2]>> = minv
+            .par_chunks_mut(CHUNK)
+            .zip(adhesion_force.par_chunks_mut(CHUNK))
+            .enumerate()
+            .map(|(ci, (minv, adh))| {
+                let lo = ci * CHUNK;
+                let mut out = Vec::with_capacity(sizes[ci]);
+                rmi_par::cpu::hot(
+                    #[inline(always)]
+                    || {
+                        for a in lo..(lo + CHUNK).min(n) {
+                            let start = out.len();
+                            this.pair_coefficients(a, &factors, &mut out);
+                            let cf = &out[start..];
+                            minv[a - lo] = this.preconditioner_block(a, cf);
+                            adh[a - lo] = this.adhesion_position_force(a, cf);
                         }
-                    }
-                },
-            )
-        });
+                    },
+                );
+                debug_assert_eq!(out.len(), sizes[ci]);
+                out
+            })
+            .collect();
         self.coef = coef;
+        self.minv = minv;
+        self.adhesion_force = adhesion_force;
+    }
+
+    /// Appends the coefficients of particle `a`'s pairs to `out`, in the order of its list:
+    /// [Laplacian coefficient / (|x|^2 + eps) times g(|x|), adhesion coefficient], zero for
+    /// pairs without an implicit term.
+    #[inline(always)]
+    fn pair_coefficients(&self, a: usize, f: &PairFactors, out: &mut Vec<[f64; 2]>) {
+        let c = self.c;
+        let nf = c.p.n_fluid;
+        let nb = c.nb.of(a);
+        let obj = |s: usize| c.p.material[s] as usize - 1;
+        for k in 0..nb.j.len() {
+            let b = nb.j[k] as usize;
+            // The lists were built at the current positions: their offsets and gradient factors
+            // are this step's. grad W = g(|x|) x: the pair term lap (y_ab . x_ab) grad W is
+            // stored as lap g (y_ab . x_ab) x_ab, so the CG passes need no gradient per pair.
+            let (xab, gf) = nb.d_and_gf(k);
+            let r2 = xab.norm_squared() + self.eps_h;
+            out.push(match (a < nf, k < nb.n_fluid) {
+                (true, true) if self.implicit_visc => [self.viscosity(f.volume[a], f.volume[b]) / r2 * gf, 0.0],
+                (true, false) => {
+                    let io = a * f.objects + obj(b);
+                    let adh = self.adhesion(a, b, f.strength[b - nf], f.density[io], nb.w[k]);
+                    [f.drag[io] / r2 * gf, adh]
+                }
+                (false, true) => {
+                    let io = b * f.objects + obj(a);
+                    let adh = self.adhesion(b, a, f.strength[a - nf], f.density[io], nb.w[k]);
+                    [f.drag[io] / r2 * gf, adh]
+                }
+                _ => [0.0, 0.0],
+            });
+        }
     }
 
     /// Cached pair coefficients of particle `a`.
@@ -309,40 +347,66 @@ impl<'a> Op<'a> {
         yay
     }
 
-    /// Block-Jacobi preconditioner blocks (inverted).
-    fn preconditioner(&self) -> Vec<Matrix3<f64>> {
+    /// Inverted block-Jacobi preconditioner block of particle `a`, given its pair
+    /// coefficients `cf`.
+    #[inline(always)]
+    fn preconditioner_block(&self, a: usize, cf: &[[f64; 2]]) -> Matrix3<f64> {
         let c = self.c;
         let nf = c.p.n_fluid;
         let dt = c.dt;
-        let mut minv = vec![Matrix3::identity(); c.p.len()];
-        rmi_par::for_each_hot(
-            &mut minv,
-            #[inline(always)]
-            |a, mi| {
-                let m = c.p.mass[a];
-                if self.s.preconditioner == Preconditioner::Identity || (a >= nf && c.rest.fixed[a - nf]) {
-                    *mi = Matrix3::identity() / m;
-                    return;
-                }
-                let nb = c.nb.of(a);
-                let cf = self.coefs(a);
-                let xa = c.p.x[a];
-                // d(F_lin)/d(y_a): pair terms coef * grad W x^T and -dt c I.
-                let mut jac = Matrix3::zeros();
-                for k in self.coupled(a, &nb) {
-                    let [lap_g, adh] = cf[k];
-                    let xab = xa - c.p.x[nb.j[k] as usize];
-                    jac += lap_g * xab * xab.transpose();
-                    jac -= Matrix3::from_diagonal_element(dt * adh);
-                }
-                let mut block = Matrix3::from_diagonal_element(m) - dt * jac;
-                if a >= nf {
-                    block += dt * dt * diagonal_block(c, self.ef, a - nf);
-                }
-                *mi = block.try_inverse().unwrap_or_else(|| Matrix3::identity() / m);
-            },
-        );
-        minv
+        let m = c.p.mass[a];
+        if self.s.preconditioner == Preconditioner::Identity || (a >= nf && c.rest.fixed[a - nf]) {
+            return Matrix3::identity() / m;
+        }
+        let nb = c.nb.of(a);
+        let xa = c.p.x[a];
+        // d(F_lin)/d(y_a): pair terms coef * grad W x^T and -dt c I.
+        let mut jac = Matrix3::zeros();
+        for k in self.coupled(a, &nb) {
+            let [lap_g, adh] = cf[k];
+            let xab = xa - c.p.x[nb.j[k] as usize];
+            jac += lap_g * xab * xab.transpose();
+            jac -= Matrix3::from_diagonal_element(dt * adh);
+        }
+        let mut block = Matrix3::from_diagonal_element(m) - dt * jac;
+        if a >= nf {
+            block += dt * dt * diagonal_block(c, self.ef, a - nf);
+        }
+        block.try_inverse().unwrap_or_else(|| Matrix3::identity() / m)
+    }
+}
+
+/// The factors of the pair coefficients that depend on one particle of the pair only,
+/// evaluated once per particle rather than once per pair (the same operations, so the same
+/// values): per water particle its volume, and per water particle and porous object the drag
+/// and the adhesion's mixture density; per skeleton particle the adhesion's strength.
+struct PairFactors {
+    /// Number of porous objects (the stride of `drag` and `density`).
+    objects: usize,
+    /// Current volume per water particle (m^3).
+    volume: Vec<f64>,
+    /// Drag coefficient per water particle and object.
+    drag: Vec<f64>,
+    /// Adhesion mixture density per water particle and object (kg/m^3).
+    density: Vec<f64>,
+    /// Adhesion strength per skeleton particle (N/m).
+    strength: Vec<f64>,
+}
+
+impl PairFactors {
+    fn new(op: &Op) -> PairFactors {
+        let c = op.c;
+        let (nf, objects) = (c.p.n_fluid, c.objects.len());
+        let per_object = |f: &dyn Fn(usize, usize) -> f64| -> Vec<f64> {
+            (0..nf * objects).map(|io| f(io / objects, io % objects)).collect()
+        };
+        PairFactors {
+            objects,
+            volume: (0..nf).map(|a| op.volume(a)).collect(),
+            drag: per_object(&|i, o| op.drag(i, o)),
+            density: per_object(&|i, o| op.adhesion_density(i, o)),
+            strength: (nf..c.p.len()).map(|s| op.adhesion_strength(s)).collect(),
+        }
     }
 }
 

@@ -46,7 +46,7 @@ pub fn solve(
                     return;
                 }
                 let nb = c.nb.of(a);
-                let mut f = m * gravity + op.adhesion_position_force(a);
+                let mut f = m * gravity + op.adhesion_force[a];
                 if a < nf {
                     if op.implicit_visc && s.boundary_viscosity > 0.0 {
                         f += op.boundary_visc(a, Vector3::zeros(), true);

@@ -7,13 +7,18 @@ use crate::world::particles::LAPLACE_D;
 use nalgebra::Vector3;
 
 impl Op<'_> {
-    /// Viscosity pair coefficient of water particles `a` and `b` before the pair geometry
-    /// (`V_a V_b d mu`, N s m with the current volumes), divided by `|x|^2 + eps` by the cache.
+    /// Current volume `m_a / rho_a` of water particle `a` (m^3), a factor of its viscosity pairs.
     #[inline]
-    pub(super) fn viscosity(&self, a: usize, b: usize) -> f64 {
-        let c = self.c;
-        let mu = self.s.viscosity * c.rho0_f;
-        (c.p.mass[a] / self.rho[a]) * (c.p.mass[b] / self.rho[b]) * LAPLACE_D * mu
+    pub(super) fn volume(&self, a: usize) -> f64 {
+        self.c.p.mass[a] / self.rho[a]
+    }
+
+    /// Viscosity pair coefficient of two water particles with current volumes `va` and `vb`
+    /// (m^3, [`Op::volume`]) before the pair geometry (`V_a V_b d mu`, N s m), divided by
+    /// `|x|^2 + eps` by the cache.
+    #[inline(always)]
+    pub(super) fn viscosity(&self, va: f64, vb: f64) -> f64 {
+        va * vb * LAPLACE_D * (self.s.viscosity * self.c.rho0_f)
     }
 
     /// Boundary viscosity with the fluid velocity `q` (matrix part) or the wall velocity (rhs part).

@@ -70,8 +70,14 @@ pub(crate) fn pcg<S: System>(
     rhs_floor: f64,
 ) -> CgStats {
     w.y.resize(x.len(), Vector3::zeros());
-    op.apply(x, &mut w.ap, &mut w.prl);
-    w.r.par_iter_mut().enumerate().for_each(|(a, r)| *r = w.b[a] - w.ap[a]);
+    // A zero guess (a correction solved from scratch, such as the slip release) leaves the
+    // right-hand side itself: no product.
+    if x.iter().all(|xa| *xa == Vector3::zeros()) {
+        w.r.copy_from_slice(&w.b);
+    } else {
+        op.apply(x, &mut w.ap, &mut w.prl);
+        w.r.par_iter_mut().enumerate().for_each(|(a, r)| *r = w.b[a] - w.ap[a]);
+    }
     op.filter(&mut w.r);
     let mut bf = w.b.clone();
     op.filter(&mut bf);
