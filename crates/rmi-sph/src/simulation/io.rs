@@ -14,8 +14,8 @@ use std::io::Write;
 
 /// Format version written into every snapshot (3: a checksum follows the payload; 4: per-particle
 /// contact loads; 5: the config's `pressure.single_solve`; 6: `response_prev` holds the last
-/// pressure response itself, no longer its drag correction).
-pub const VERSION: u32 = 6;
+/// pressure response itself, no longer its drag correction; 7: `vstar_prev`, the last v*).
+pub const VERSION: u32 = 7;
 const MAGIC: &[u8; 8] = b"RMISNAP\0";
 /// Bytes of the checksum after the payload.
 const SUM_LEN: usize = 8;
@@ -71,6 +71,8 @@ pub struct Snapshot {
     pub dv_prev: Vec<Vector3<f64>>,
     /// The last pressure response (m/s; the next one's initial guess).
     pub response_prev: Vec<Vector3<f64>>,
+    /// The last implicit solve's v* (m/s; with `dv_prev`, the next one's guess).
+    pub vstar_prev: Vec<Vector3<f64>>,
     /// Per skeleton particle, the normal force (N) of its body contact in the last step;
     /// zero where it had none or the contact did not push.
     pub contact_load: Vec<f64>,
@@ -101,6 +103,7 @@ impl Snapshot {
             ("kappa_dt2", self.kappa_dt2.len()),
             ("dv_prev", self.dv_prev.len()),
             ("response_prev", self.response_prev.len()),
+            ("vstar_prev", self.vstar_prev.len()),
         ] {
             if len != n {
                 return Err(RmiError::State(format!("array `{name}` has {len} entries, expected {n}")));
@@ -126,6 +129,7 @@ impl Snapshot {
             .chain(&self.boundary_velocities)
             .chain(&self.dv_prev)
             .chain(&self.response_prev)
+            .chain(&self.vstar_prev)
             .chain(&self.rest_positions)
             .all(finite)
             || !self.kappa_dt2.iter().all(|k| k.is_finite())
@@ -285,6 +289,7 @@ impl Simulation {
             kappa_dt2: self.kappa_dt2.clone(),
             dv_prev: self.dv_prev.clone(),
             response_prev: self.response_prev.clone(),
+            vstar_prev: self.vstar_prev.clone(),
             contact_load: self.contact_load.clone(),
             bodies: self.bnd.bodies.iter().map(|b| b.state.clone()).collect(),
             boundary_velocities: self.bnd.v.clone(),
@@ -326,6 +331,7 @@ impl Simulation {
         fresh.kappa_dt2 = s.kappa_dt2;
         fresh.dv_prev = s.dv_prev;
         fresh.response_prev = s.response_prev;
+        fresh.vstar_prev = s.vstar_prev;
         fresh.contact_load = s.contact_load;
         fresh.kappa = vec![0.0; n];
         fresh.acc = vec![Vector3::zeros(); n];

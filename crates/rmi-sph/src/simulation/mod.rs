@@ -76,6 +76,8 @@ pub struct Simulation {
     pub(crate) dv_prev: Vec<Vector3<f64>>,
     /// The last pressure response (m/s; the next one's initial guess).
     pub(crate) response_prev: Vec<Vector3<f64>>,
+    /// The last implicit solve's v* (m/s; part of the next one's guess).
+    pub(crate) vstar_prev: Vec<Vector3<f64>>,
     acc: Vec<Vector3<f64>>,
     rho0: Vec<f64>,
     pwork: PressureWork,
@@ -160,6 +162,7 @@ impl Simulation {
             kappa_dt2: vec![0.0; n],
             dv_prev: vec![Vector3::zeros(); n],
             response_prev: vec![Vector3::zeros(); n],
+            vstar_prev: vec![Vector3::zeros(); n],
             acc: vec![Vector3::zeros(); n],
             pwork: PressureWork::default(),
             cgwork: CgWork::default(),
@@ -216,7 +219,7 @@ impl Simulation {
         self.cfg.gravity = gravity;
         run?;
         self.p.v.iter_mut().for_each(|v| *v = Vector3::zeros());
-        for buf in [&mut self.dv_prev, &mut self.response_prev] {
+        for buf in [&mut self.dv_prev, &mut self.response_prev, &mut self.vstar_prev] {
             buf.iter_mut().for_each(|v| *v = Vector3::zeros());
         }
         self.kappa_dt2.iter_mut().for_each(|k| *k = 0.0);

@@ -59,6 +59,7 @@ fn nonpressure_settings(cfg: &SimConfig) -> NonPressureSettings {
 struct Undo {
     dv_prev: Vec<Vector3<f64>>,
     response_prev: Vec<Vector3<f64>>,
+    vstar_prev: Vec<Vector3<f64>>,
     rotation: Vec<nalgebra::UnitQuaternion<f64>>,
     kappa: Vec<f64>,
 }
@@ -124,6 +125,7 @@ impl Simulation {
         apply(&mut self.kappa_dt2, &perm);
         apply(&mut self.dv_prev, &perm);
         apply(&mut self.response_prev, &perm);
+        apply(&mut self.vstar_prev, &perm);
         // Fields of the last step, so that accessors stay aligned with the particles.
         for f in [
             &mut self.kappa,
@@ -220,6 +222,7 @@ impl Simulation {
         let undo = Undo {
             dv_prev: self.dv_prev.clone(),
             response_prev: self.response_prev.clone(),
+            vstar_prev: self.vstar_prev.clone(),
             rotation: self.solid.rotation.clone(),
             kappa: self.kappa.clone(),
         };
@@ -300,6 +303,7 @@ impl Simulation {
                 &g,
                 &mut v,
                 &mut self.dv_prev,
+                &mut self.vstar_prev,
                 &mut self.cgwork,
                 pressure_impulse.as_deref(),
             );
@@ -417,6 +421,7 @@ impl Simulation {
             self.kappa_dt2 = kappa_dt2_old;
             self.dv_prev = undo.dv_prev;
             self.response_prev = undo.response_prev;
+            self.vstar_prev = undo.vstar_prev;
             self.solid.rotation = undo.rotation;
             self.kappa = undo.kappa;
             std::mem::swap(&mut self.dens, &mut self.dens_last);

@@ -11,8 +11,9 @@ use rayon::prelude::*;
 
 /// Solves for v* and writes it into `v`, honouring `constraints` exactly (filtered PCG).
 /// `kappa_prev` (kappa of the previous step) drives buoyancy; `gravity` (m/s^2) is part of
-/// the right-hand side so that constraints see it; `dv_prev` is the warm start, updated to
-/// v* - v on exit. Returns the statistics and the impulse (N s) each constraint exerted on
+/// the right-hand side so that constraints see it; `dv_prev` (v* - v of the last step) and
+/// `vstar_prev` (the last v\*) give the warm start (see [`warm_start`]) and are updated to
+/// this step's v* - v and v* on exit. Returns the statistics and the impulse (N s) each constraint exerted on
 /// its particle (along the normal; the whole vector for a sticking contact). `impulse`, when
 /// given, is a velocity increment (m/s) per particle whose momentum `m dv` joins the
 /// right-hand side (the pressure impulse of [`crate::config::PressureConfig::single_solve`]).
@@ -23,10 +24,11 @@ pub fn solve(
     gravity: &Vector3<f64>,
     v: &mut [Vector3<f64>],
     dv_prev: &mut [Vector3<f64>],
+    vstar_prev: &mut [Vector3<f64>],
     w: &mut CgWork,
     impulse: Option<&[Vector3<f64>]>,
 ) -> (CgStats, Vec<Vector3<f64>>) {
-    let (c, ef, s, constraints) = (op.c, op.ef, op.s, &op.constraints);
+    let (c, ef, s) = (op.c, op.ef, op.s);
     let n = c.p.len();
     let nf = c.p.n_fluid;
     for buf in [&mut w.r, &mut w.p, &mut w.ap, &mut w.b] {
@@ -67,19 +69,70 @@ pub fn solve(
             },
         );
     }
-    // Initial guess: warm start, with constrained normal components set to their targets.
-    let mut x: Vec<Vector3<f64>> = (0..n).map(|a| if s.warm_start { v[a] + dv_prev[a] } else { v[a] }).collect();
-    for con in constraints {
-        let xa = &mut x[con.particle as usize];
-        *xa = con.project(xa);
-    }
-    let stats = pcg(op, &mut x, w, s.tolerance, s.max_iterations, 0.0);
+    let stats = if s.warm_start {
+        // The guess's product is the CG's first one (`w.ap`).
+        let mut x = warm_start(op, v, dv_prev, vstar_prev, w);
+        let stats = pcg(op, &mut x, w, s.tolerance, s.max_iterations, 0.0, true);
+        vstar_prev.copy_from_slice(&x);
+        (stats, x)
+    } else {
+        let mut x = v.to_vec();
+        project(op, &mut x);
+        (pcg(op, &mut x, w, s.tolerance, s.max_iterations, 0.0, false), x)
+    };
+    let (stats, x) = stats;
     let impulses = constraint_impulses(op, &x, w);
     v.par_iter_mut().zip(dv_prev.par_iter_mut()).zip(x.par_iter()).for_each(|((vi, dvi), xi)| {
         *dvi = xi - *vi;
         *vi = *xi;
     });
     (stats, impulses)
+}
+
+/// Sets the constrained components of `x` to their targets.
+fn project(op: &Op, x: &mut [Vector3<f64>]) {
+    for con in &op.constraints {
+        let xa = &mut x[con.particle as usize];
+        *xa = con.project(xa);
+    }
+}
+
+/// The implicit solve's initial guess, and its product `A x` in `w.ap` (`w.b` holds the
+/// right-hand side). Two guesses each serve part of a trial: `v + (v*_prev - v_prev)` repeats
+/// the last step's change, which carries the solution's trend while a sponge is squeezed or
+/// falls; the last v* itself is closer while a sponge rests or is held, where the pressure's
+/// corrections move `v` but barely `v*`. The guess is the point on the line through the two
+/// with the smallest error in the operator's energy norm (a line search: one product more,
+/// the second guess's), so it is never worse than the first. Constrained components are set
+/// to their targets in both.
+fn warm_start(
+    op: &Op,
+    v: &[Vector3<f64>],
+    dv_prev: &[Vector3<f64>],
+    vstar_prev: &[Vector3<f64>],
+    w: &mut CgWork,
+) -> Vec<Vector3<f64>> {
+    let mut x: Vec<Vector3<f64>> = v.iter().zip(dv_prev).map(|(vi, dvi)| vi + dvi).collect();
+    project(op, &mut x);
+    op.apply(&x, &mut w.ap, &mut w.prl);
+    // The direction to the last v*, without the components the constraints hold.
+    let mut d: Vec<Vector3<f64>> = vstar_prev.iter().zip(&x).map(|(b, a)| b - a).collect();
+    filter(&mut d, &op.filters);
+    let mut ad = vec![Vector3::zeros(); d.len()];
+    op.apply(&d, &mut ad, &mut w.prl);
+    // theta = d . r / d . A d minimises the energy error along d; r = b - A x, and d is
+    // filtered, so the held components of r do not count.
+    let (b, ax) = (&w.b, &w.ap);
+    let num = rmi_par::sum(d.len(), |a| d[a].dot(&(b[a] - ax[a])));
+    let den = rmi_par::sum(d.len(), |a| d[a].dot(&ad[a]));
+    let theta = num / den;
+    if den > 0.0 && theta.is_finite() {
+        x.par_iter_mut().zip(w.ap.par_iter_mut()).enumerate().for_each(|(a, (xa, axa))| {
+            *xa += theta * d[a];
+            *axa += theta * ad[a];
+        });
+    }
+    x
 }
 
 /// Implicit response of the coupled system to a velocity increment `dv` (m/s), such as the
@@ -131,7 +184,7 @@ pub fn pressure_response(
         };
     });
     filter(dv, &op.filters);
-    let stats = pcg(op, dv, w, op.s.tolerance, op.s.max_iterations, rhs_floor);
+    let stats = pcg(op, dv, w, op.s.tolerance, op.s.max_iterations, rhs_floor, false);
     if let Some(prev) = previous {
         prev.par_iter_mut().zip(dv.par_iter()).for_each(|(p, x)| *p = *x);
     }

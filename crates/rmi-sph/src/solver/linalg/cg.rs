@@ -52,7 +52,9 @@ fn dot(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
 /// Preconditioned CG on `A x = w.b` from the guess in `x`, with the constrained rows' normal
 /// components held fixed; the tolerance is relative to the filtered right-hand side's norm,
 /// or to `rhs_floor` (N s) where that is larger: a correction to an earlier solve of the
-/// same step needs no smaller residual than that solve left.
+/// same step needs no smaller residual than that solve left. `guess_product`: `w.ap` already
+/// holds `A x` of the guess (computed by the caller with it), so the solve needs no first
+/// product.
 ///
 /// The preconditioner is block Jacobi `y = M^-1 r`, plus, when the operator has a coarse
 /// level ([`crate::solver::linalg::coarse`], A-DEF2), the coarse correction `z = y + Z E^-1 (Z^T r - (A Z)^T y)`;
@@ -68,14 +70,17 @@ pub(crate) fn pcg<S: System>(
     tolerance: f64,
     max_iterations: u32,
     rhs_floor: f64,
+    guess_product: bool,
 ) -> CgStats {
     w.y.resize(x.len(), Vector3::zeros());
     // A zero guess (a correction solved from scratch, such as the slip release) leaves the
     // right-hand side itself: no product.
-    if x.iter().all(|xa| *xa == Vector3::zeros()) {
+    if !guess_product && x.iter().all(|xa| *xa == Vector3::zeros()) {
         w.r.copy_from_slice(&w.b);
     } else {
-        op.apply(x, &mut w.ap, &mut w.prl);
+        if !guess_product {
+            op.apply(x, &mut w.ap, &mut w.prl);
+        }
         w.r.par_iter_mut().enumerate().for_each(|(a, r)| *r = w.b[a] - w.ap[a]);
     }
     op.filter(&mut w.r);
