@@ -236,4 +236,37 @@ mod tests {
         }
         assert!(7 * iw <= 2 * ic, "150 steps: from the last response {iw} iterations, from zero {ic}");
     }
+
+    /// A saturated sponge settled on the floor: the pressure's corrections move v but barely
+    /// v*, so the line search lands near the last v* and needs fewer implicit iterations than
+    /// the repeated last change alone (the guess when the search direction is zero), ending
+    /// where that one ends.
+    #[test]
+    fn implicit_guess_line_search_beats_the_repeated_change_at_rest() {
+        let cfg = presets::sponge([0.06, 0.06, 0.1], 0.6, 0.005);
+        let mut search = Simulation::new(cfg.clone(), Some(2)).unwrap();
+        search.run(500).unwrap();
+        let mut first = Simulation::new(cfg, Some(2)).unwrap();
+        let (mut is, mut i1) = (0, 0);
+        for _ in 0..100 {
+            first.restore(search.snapshot()).unwrap();
+            // The last v* on the first guess: a zero search direction.
+            let p = &first.p;
+            for (a, vs) in first.vstar_prev.iter_mut().enumerate() {
+                *vs = p.v[a] + first.dv_prev[a];
+            }
+            search.step().unwrap();
+            first.step().unwrap();
+            is += search.stats().cg.iterations;
+            i1 += first.stats().cg.iterations;
+            let (vs, v1) = (&search.particles().v, &first.particles().v);
+            let diff = vs.iter().zip(v1).map(|(a, b)| (a - b).norm_squared()).sum::<f64>().sqrt();
+            // At rest the velocities are the solve's error; its scale is what gravity adds in a
+            // step (the right-hand side's), and both stop at a relative residual of 3e-3.
+            let scale = 9.81 * search.config().dt * (v1.len() as f64).sqrt();
+            assert!(diff < 0.03 * scale, "velocities differ by {diff} m/s (L2 norm; gravity's step {scale} m/s)");
+        }
+        assert!(i1 > 0, "the repeated change must need iterations");
+        assert!(3 * is <= 2 * i1, "100 steps: with the line search {is} implicit iterations, the first guess {i1}");
+    }
 }
