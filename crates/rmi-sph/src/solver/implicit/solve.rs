@@ -13,8 +13,9 @@ use rayon::prelude::*;
 /// `kappa_prev` (kappa of the previous step) drives buoyancy; `gravity` (m/s^2) is part of
 /// the right-hand side so that constraints see it; `dv_prev` (v* - v of the last step) and
 /// `vstar_prev` (the last v\*) give the warm start (see [`warm_start`]) and are updated to
-/// this step's v* - v and v* on exit. Returns the statistics and the impulse (N s) each constraint exerted on
-/// its particle (along the normal; the whole vector for a sticking contact). `impulse`, when
+/// this step's v* - v and v* on exit. Returns the statistics and the impulse (N s) each
+/// constraint exerted on its particle (along the normal; the whole vector for a sticking
+/// contact). `impulse`, when
 /// given, is a velocity increment (m/s) per particle whose momentum `m dv` joins the
 /// right-hand side (the pressure impulse of [`crate::config::PressureConfig::single_solve`]).
 #[allow(clippy::too_many_arguments)]
@@ -69,7 +70,7 @@ pub fn solve(
             },
         );
     }
-    let stats = if s.warm_start {
+    let (stats, x) = if s.warm_start {
         // The guess's product is the CG's first one (`w.ap`).
         let mut x = warm_start(op, v, dv_prev, vstar_prev, w);
         let stats = pcg(op, &mut x, w, s.tolerance, s.max_iterations, 0.0, true);
@@ -80,7 +81,6 @@ pub fn solve(
         project(op, &mut x);
         (pcg(op, &mut x, w, s.tolerance, s.max_iterations, 0.0, false), x)
     };
-    let (stats, x) = stats;
     let impulses = constraint_impulses(op, &x, w);
     v.par_iter_mut().zip(dv_prev.par_iter_mut()).zip(x.par_iter()).for_each(|((vi, dvi), xi)| {
         *dvi = xi - *vi;
