@@ -38,7 +38,7 @@ impl Op<'_> {
         let c = self.c;
         let nbb = c.nbb.of(a);
         let mub = self.s.boundary_viscosity * c.rho0_f;
-        let va = c.p.mass[a] / self.rho[a];
+        let va = self.volume(a);
         for k in 0..nbb.j.len() {
             let kk = nbb.j[k] as usize;
             let xak = c.p.x[a] - c.bnd.x[kk];
