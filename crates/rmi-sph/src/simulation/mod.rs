@@ -82,6 +82,8 @@ pub struct Simulation {
     rho0: Vec<f64>,
     pwork: PressureWork,
     cgwork: CgWork,
+    /// The last step's operator caches, reused by the next (scratch, not state).
+    op_buffers: implicit::OpBuffers,
     pub(crate) time: f64,
     pub(crate) step: u64,
     stats: StepStats,
@@ -166,6 +168,7 @@ impl Simulation {
             acc: vec![Vector3::zeros(); n],
             pwork: PressureWork::default(),
             cgwork: CgWork::default(),
+            op_buffers: implicit::OpBuffers::default(),
             time: 0.0,
             step: 0,
             stats: StepStats::default(),

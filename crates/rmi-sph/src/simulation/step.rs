@@ -255,7 +255,8 @@ impl Simulation {
         let implicit = implicit::needed(&ctx, &nps);
         let mut contacts: Vec<Contact> = Vec::with_capacity(detected.len());
         let cons: Vec<_> = detected.iter().map(|d| d.0).collect();
-        let mut system = implicit.then(|| implicit::Op::new(&ctx, &self.dens, &self.ef, &nps, cons));
+        let buffers = std::mem::take(&mut self.op_buffers);
+        let mut system = implicit.then(|| implicit::Op::with_buffers(&ctx, &self.dens, &self.ef, &nps, cons, buffers));
         let nf = self.p.n_fluid;
         let fixed = &self.rest.fixed;
         let ps = PressureSettings::from(&cfg.pressure);
@@ -381,6 +382,9 @@ impl Simulation {
             }
             _ => CgStats::default(),
         };
+        if let Some(op) = system {
+            self.op_buffers = op.into_buffers();
+        }
         for (a, vi) in v.iter_mut().enumerate().skip(nf) {
             if fixed[a - nf] {
                 *vi = Vector3::zeros();

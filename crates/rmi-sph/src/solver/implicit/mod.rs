@@ -34,5 +34,5 @@ pub use operator::{NonPressureSettings, TWO_LEVEL_MIN_SOLIDS};
 pub(crate) use crate::solver::linalg::CgWork;
 pub(crate) use explicit::{buoyancy_forces, coupling_forces, explicit_accelerations};
 pub(crate) use hourglass::hourglass_constants;
-pub(crate) use operator::{needed, Op};
+pub(crate) use operator::{needed, Op, OpBuffers};
 pub(crate) use solve::{pressure_response, solve};

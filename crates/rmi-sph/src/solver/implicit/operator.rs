@@ -44,6 +44,17 @@ pub struct NonPressureSettings {
     pub coarse_cell: f64,
 }
 
+/// The storage of an [`Op`]'s per-step caches (pair coefficients, preconditioner blocks,
+/// adhesion forces), handed from one step's operator to the next: a fresh allocation of
+/// this size each step costs more than filling it (the allocator returns the memory to the
+/// system and takes it back zeroed).
+#[derive(Debug, Default)]
+pub struct OpBuffers {
+    coef: Vec<Vec<[f64; 2]>>,
+    minv: Vec<Matrix3<f64>>,
+    adhesion_force: Vec<Vector3<f64>>,
+}
+
 /// The step's implicit system: the operator `A y = m y - dt F_lin(y)` at the current
 /// positions, the skeleton-body contact constraints it honours and its block-Jacobi
 /// preconditioner. Built once per step; [`solve`] and [`pressure_response`] share it.
@@ -83,6 +94,19 @@ impl<'a> Op<'a> {
         s: &'a NonPressureSettings,
         constraints: Vec<VelocityConstraint>,
     ) -> Self {
+        Self::with_buffers(c, dens, ef, s, constraints, OpBuffers::default())
+    }
+
+    /// [`Op::new`] with its caches in `buffers` (the last step's, from [`Op::into_buffers`]);
+    /// every value is overwritten.
+    pub fn with_buffers(
+        c: &'a Ctx<'a>,
+        dens: &'a DensityFields,
+        ef: &'a ElasticFields,
+        s: &'a NonPressureSettings,
+        constraints: Vec<VelocityConstraint>,
+        buffers: OpBuffers,
+    ) -> Self {
         let nf = c.p.n_fluid;
         let rho = (0..c.p.len())
             .map(|a| dens.rho_ratio[a] * if a < nf { c.rho0_f } else { c.object(a).material.dry_density })
@@ -96,11 +120,11 @@ impl<'a> Op<'a> {
             rho,
             eps_h: 0.01 * h * h,
             implicit_visc: s.viscosity_mode == ViscosityMode::Implicit && s.viscosity > 0.0,
-            coef: Vec::new(),
+            coef: buffers.coef,
             filters: constraint_field(c.p.len(), &constraints),
             constraints,
-            minv: Vec::new(),
-            adhesion_force: Vec::new(),
+            minv: buffers.minv,
+            adhesion_force: buffers.adhesion_force,
             coarse: None,
         };
         op.fill();
@@ -114,6 +138,12 @@ impl<'a> Op<'a> {
         }
         op
     }
+
+    /// The storage of the caches, for the next step's operator.
+    pub fn into_buffers(self) -> OpBuffers {
+        OpBuffers { coef: self.coef, minv: self.minv, adhesion_force: self.adhesion_force }
+    }
+
     /// Aggregates, the rows of `A Z` and the factored coarse matrix (None without aggregates).
     /// Pinned and constrained particles stay out of the aggregates: the coarse space then lies
     /// in the constraints' admissible set without a filter on its columns.
@@ -208,22 +238,29 @@ impl<'a> Op<'a> {
         let n = c.p.len();
         let sizes = c.nb.chunk_pairs();
         let factors = PairFactors::new(self);
-        let mut minv = vec![Matrix3::zeros(); n];
-        let mut adhesion_force = vec![Vector3::zeros(); n];
+        // Every value below is overwritten: the particles' blocks by index, the pairs' by
+        // appending to emptied chunks.
+        let mut minv = std::mem::take(&mut self.minv);
+        let mut adhesion_force = std::mem::take(&mut self.adhesion_force);
+        let mut coef = std::mem::take(&mut self.coef);
+        minv.resize(n, Matrix3::zeros());
+        adhesion_force.resize(n, Vector3::zeros());
+        coef.resize_with(sizes.len(), Vec::new);
         let this: &Op = self;
-        let coef: Vec<Vec<[f64; 2]>> = minv
-            .par_chunks_mut(CHUNK)
+        minv.par_chunks_mut(CHUNK)
             .zip(adhesion_force.par_chunks_mut(CHUNK))
+            .zip(coef.par_iter_mut())
             .enumerate()
-            .map(|(ci, (minv, adh))| {
+            .for_each(|(ci, ((minv, adh), out))| {
                 let lo = ci * CHUNK;
-                let mut out = Vec::with_capacity(sizes[ci]);
+                out.clear();
+                out.reserve(sizes[ci]);
                 rmi_par::cpu::hot(
                     #[inline(always)]
                     || {
                         for a in lo..(lo + CHUNK).min(n) {
                             let start = out.len();
-                            this.pair_coefficients(a, &factors, &mut out);
+                            this.pair_coefficients(a, &factors, out);
                             let cf = &out[start..];
                             minv[a - lo] = this.preconditioner_block(a, cf);
                             adh[a - lo] = this.adhesion_position_force(a, cf);
@@ -231,9 +268,7 @@ impl<'a> Op<'a> {
                     },
                 );
                 debug_assert_eq!(out.len(), sizes[ci]);
-                out
-            })
-            .collect();
+            });
         self.coef = coef;
         self.minv = minv;
         self.adhesion_force = adhesion_force;
