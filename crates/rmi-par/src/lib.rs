@@ -92,6 +92,40 @@ where
     std::array::from_fn(|k| partial.iter().map(|p| p[k]).sum())
 }
 
+/// [`for_each_sum`] over three arrays of equal length: `f(i, &mut a[i], &mut b[i], &mut c[i])`,
+/// same chunks and summation order.
+#[inline(always)]
+pub fn for_each3_sum<A, B, C, F, const K: usize>(a: &mut [A], b: &mut [B], c: &mut [C], f: F) -> [f64; K]
+where
+    A: Send,
+    B: Send,
+    C: Send,
+    F: Fn(usize, &mut A, &mut B, &mut C) -> [f64; K] + Sync,
+{
+    let partial: Vec<[f64; K]> = a
+        .par_chunks_mut(REDUCE_CHUNK)
+        .zip(b.par_chunks_mut(REDUCE_CHUNK))
+        .zip(c.par_chunks_mut(REDUCE_CHUNK))
+        .enumerate()
+        .map(|(ci, ((ca, cb), cc))| {
+            crate::cpu::hot(
+                #[inline(always)]
+                || {
+                    let mut s = [0.0; K];
+                    for (k, ((x, y), z)) in ca.iter_mut().zip(cb.iter_mut()).zip(cc.iter_mut()).enumerate() {
+                        let v = f(ci * REDUCE_CHUNK + k, x, y, z);
+                        for (acc, vi) in s.iter_mut().zip(v) {
+                            *acc += vi;
+                        }
+                    }
+                    s
+                },
+            )
+        })
+        .collect();
+    std::array::from_fn(|k| partial.iter().map(|p| p[k]).sum())
+}
+
 /// Deterministic maximum of `f(i)`; NaN wins so that divergence is never hidden.
 pub fn max<F>(n: usize, f: F) -> f64
 where
@@ -205,6 +239,15 @@ mod tests {
             assert_eq!(got[0].to_bits(), want[0].to_bits(), "{threads} threads");
             assert_eq!(got[1].to_bits(), want[1].to_bits(), "{threads} threads");
             assert!(out.iter().zip(&v).all(|(o, x)| *o == 2.0 * x));
+            let (mut p, mut q, mut r) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+            let got3 = pool.install(|| {
+                for_each3_sum(&mut p, &mut q, &mut r, |i, p, q, r| {
+                    (*p, *q, *r) = (v[i], 2.0 * v[i], 3.0 * v[i]);
+                    [v[i], v[i] * v[i]]
+                })
+            });
+            assert_eq!(got3.map(f64::to_bits), want.map(f64::to_bits), "{threads} threads, three arrays");
+            assert!((0..n).all(|i| (p[i], q[i], r[i]) == (v[i], 2.0 * v[i], 3.0 * v[i])));
         }
         // The chunking matters: a plain sequential sum of these values rounds differently.
         assert_ne!(v.iter().sum::<f64>().to_bits(), want[0].to_bits());

@@ -17,6 +17,10 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 use rmi_par as par;
 
+/// Materials (water first, then the porous objects) whose mean compression the iterations'
+/// update pass sums as it goes.
+const FUSED_MATERIALS: usize = 4;
+
 /// Force (N) and torque about the body centre (N m) on one body.
 pub type BodyLoad = (Vector3<f64>, Vector3<f64>);
 
@@ -281,11 +285,14 @@ pub fn solve(
                 },
             );
         }
-        {
+        let mat = &c.p.material;
+        // The first FUSED_MATERIALS materials' compression sums come out of the update pass
+        // (each with the bits of its own `par::sum`); any further material's get a pass each.
+        let fused = {
             let ap: &[Vector3<f64>] = &work.ap;
             let source = &work.source;
             let w = WaterPairs { x, rec: &work.rq, grad: &dens.fluid_grad };
-            par::for_each_hot3(
+            par::for_each3_sum(
                 kappa,
                 &mut work.err,
                 &mut work.rk,
@@ -297,16 +304,24 @@ pub fn solve(
                     let alpha = dens.alpha[a];
                     *ka = if alpha > 0.0 { (*ka - settings.omega * residual * alpha / dt2).max(0.0) } else { 0.0 };
                     *r = Rec4::scaled_position(*ka, &x[a]);
+                    let mut sums = [0.0; FUSED_MATERIALS];
+                    if let Some(s) = sums.get_mut(mat[a] as usize) {
+                        *s = *e;
+                    }
+                    sums
                 },
-            );
-        }
+            )
+        };
         stats.iterations += 1;
         solid_live = live(kappa);
         let mut converged = true;
         for (m, em) in stats.error.iter_mut().enumerate() {
-            let mat = &c.p.material;
             let errs = &work.err;
-            *em = par::sum(n, |a| if mat[a] as usize == m { errs[a] } else { 0.0 }) / counts[m];
+            let total = match fused.get(m) {
+                Some(s) => *s,
+                None => par::sum(n, |a| if mat[a] as usize == m { errs[a] } else { 0.0 }),
+            };
+            *em = total / counts[m];
             if *em > eta {
                 converged = false;
             }

@@ -459,6 +459,11 @@ impl System for Op<'_> {
     }
 
     #[inline(always)]
+    fn filter_at(&self, a: usize, x: &mut Vector3<f64>) {
+        self.filters[a].apply(x)
+    }
+
+    #[inline(always)]
     fn precondition(&self, a: usize, r: &Vector3<f64>) -> Vector3<f64> {
         super::constraints::precondition(&self.minv, &self.filters, a, r)
     }

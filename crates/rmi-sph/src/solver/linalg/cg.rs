@@ -39,14 +39,12 @@ pub(crate) trait System: Sync {
     fn apply_filtered_dot(&self, y: &[Vector3<f64>], out: &mut [Vector3<f64>], scratch: &mut [Matrix3<f64>]) -> f64;
     /// Removes the held components of every particle's vector.
     fn filter(&self, x: &mut [Vector3<f64>]);
+    /// Removes the held components of particle `a`'s vector `x`.
+    fn filter_at(&self, a: usize, x: &mut Vector3<f64>);
     /// The preconditioned residual of particle `a`, filtered.
     fn precondition(&self, a: usize, r: &Vector3<f64>) -> Vector3<f64>;
     /// The coarse level, if any.
     fn coarse(&self) -> Option<&TwoLevel>;
-}
-
-fn dot(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
-    rmi_par::sum(a.len(), |i| a[i].dot(&b[i]))
 }
 
 /// Preconditioned CG on `A x = w.b` from the guess in `x`, with the constrained rows' normal
@@ -75,18 +73,24 @@ pub(crate) fn pcg<S: System>(
     w.y.resize(x.len(), Vector3::zeros());
     // A zero guess (a correction solved from scratch, such as the slip release) leaves the
     // right-hand side itself: no product.
-    if !guess_product && x.iter().all(|xa| *xa == Vector3::zeros()) {
-        w.r.copy_from_slice(&w.b);
-    } else {
-        if !guess_product {
-            op.apply(x, &mut w.ap, &mut w.prl);
-        }
-        w.r.par_iter_mut().enumerate().for_each(|(a, r)| *r = w.b[a] - w.ap[a]);
+    let zero_guess = !guess_product && x.iter().all(|xa| *xa == Vector3::zeros());
+    if !guess_product && !zero_guess {
+        op.apply(x, &mut w.ap, &mut w.prl);
     }
-    op.filter(&mut w.r);
-    let mut bf = w.b.clone();
-    op.filter(&mut bf);
-    let rhs_norm = dot(&bf, &bf).sqrt();
+    // The filtered residual and the filtered right-hand side's norm, in one pass.
+    let (b, ap) = (&w.b, &w.ap);
+    let [bb] = rmi_par::for_each_sum(
+        &mut w.r,
+        #[inline(always)]
+        |a, r| {
+            *r = if zero_guess { b[a] } else { b[a] - ap[a] };
+            op.filter_at(a, r);
+            let mut bf = b[a];
+            op.filter_at(a, &mut bf);
+            [bf.dot(&bf)]
+        },
+    );
+    let rhs_norm = bb.sqrt();
     let bnorm = rhs_norm.max(rhs_floor).max(1e-300);
     if let Some(tl) = op.coarse() {
         // x += Z c, r -= A Z c with c = E^-1 Z^T r; A Z is stored unfiltered, so the residual
