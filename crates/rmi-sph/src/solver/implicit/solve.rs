@@ -184,18 +184,106 @@ pub fn pressure_response(
         };
     });
     filter(dv, &op.filters);
-    let stats = pcg(op, dv, w, op.s.tolerance, op.s.max_iterations, rhs_floor, false);
+    let scaled = prev.is_some() && scale_guess(op, dv, w, op.s.tolerance, rhs_floor);
+    let stats = pcg(op, dv, w, op.s.tolerance, op.s.max_iterations, rhs_floor, scaled);
     if let Some(prev) = previous {
         prev.par_iter_mut().zip(dv.par_iter()).for_each(|(p, x)| *p = *x);
     }
     (stats, constraint_impulses(op, dv, w))
 }
 
+/// Scales the guess `x` (filtered) to the multiple with the smallest error in the operator's
+/// energy norm, `theta = x . b / x . A x` (`w.b` holds the right-hand side), and leaves its
+/// product in `w.ap`: the last response's shape carries over from step to step better than
+/// its size, which follows the pressure impulse. A guess whose residual already meets
+/// `tolerance` (relative to the filtered right-hand side's norm or `rhs_floor`, as in
+/// [`pcg`]) is kept as it is: the CG would return it unchanged, and scaling an accepted
+/// answer would move it every step, so that a resting sponge's velocities would wander and
+/// the next implicit solve's guess lose its footing. Returns false (nothing computed) for a
+/// zero guess.
+fn scale_guess(op: &Op, x: &mut [Vector3<f64>], w: &mut CgWork, tolerance: f64, rhs_floor: f64) -> bool {
+    if x.iter().all(|xa| *xa == Vector3::zeros()) {
+        return false;
+    }
+    op.apply(x, &mut w.ap, &mut w.prl);
+    let (b, ax, filters) = (&w.b, &w.ap, &op.filters);
+    let [xb, xax, rr, bb] = rmi_par::for_each_sum(
+        &mut w.r,
+        #[inline(always)]
+        |a, r| {
+            *r = b[a] - ax[a];
+            filters[a].apply(r);
+            let mut bf = b[a];
+            filters[a].apply(&mut bf);
+            [x[a].dot(&b[a]), x[a].dot(&ax[a]), r.dot(r), bf.dot(&bf)]
+        },
+    );
+    let theta = xb / xax;
+    let accepted = rr.sqrt() <= tolerance * bb.sqrt().max(rhs_floor).max(1e-300);
+    if !accepted && xax > 0.0 && theta.is_finite() {
+        x.par_iter_mut().zip(w.ap.par_iter_mut()).for_each(|(xa, axa)| {
+            *xa *= theta;
+            *axa *= theta;
+        });
+    }
+    true
+}
+
 #[cfg(test)]
 mod tests {
+    use super::super::constraints::filter;
+    use super::scale_guess;
     use crate::config::{BodyConfig, Shape};
+    use crate::solver::linalg::CgWork;
     use crate::{presets, Simulation};
-    use nalgebra::Vector3;
+    use nalgebra::{Matrix3, Vector3};
+
+    /// The response's guess is scaled to the multiple with the smallest energy-norm error: a
+    /// multiple of the exact solution scales back to it (with its product), and any other
+    /// guess's energy `x . A x / 2 - x . b` never grows.
+    #[test]
+    fn response_guess_scales_to_the_energy_optimal_multiple() {
+        let mut sim = Simulation::new(presets::sponge([0.06, 0.06, 0.1], 0.6, 0.005), Some(2)).unwrap();
+        sim.run(50).unwrap();
+        sim.with_operator(|op| {
+            let n = op.c.p.len();
+            let mut w = CgWork::default();
+            for buf in [&mut w.r, &mut w.p, &mut w.ap, &mut w.b] {
+                buf.resize(n, Vector3::zeros());
+            }
+            w.prl.resize(op.c.p.n_solid(), Matrix3::zeros());
+            // A smooth, filtered velocity field as the exact solution y, and b = A y.
+            let mut y: Vec<Vector3<f64>> = op.c.p.x.iter().map(|x| Vector3::new(x.z, -0.5 * x.x, 0.2 + x.y)).collect();
+            filter(&mut y, &op.filters);
+            let mut ay = vec![Vector3::zeros(); n];
+            op.apply(&y, &mut ay, &mut w.prl);
+            w.b.copy_from_slice(&ay);
+            let mut x: Vec<Vector3<f64>> = y.iter().map(|v| 0.37 * v).collect();
+            assert!(scale_guess(op, &mut x, &mut w, 0.0, 0.0));
+            let scale = y.iter().map(|v| v.norm()).fold(0.0, f64::max);
+            let ascale = ay.iter().map(|v| v.norm()).fold(0.0, f64::max);
+            for a in 0..n {
+                assert!((x[a] - y[a]).norm() < 1e-12 * scale, "particle {a}: {} against {}", x[a], y[a]);
+                assert!((w.ap[a] - ay[a]).norm() < 1e-12 * ascale, "product of particle {a}");
+            }
+            // Another guess: the solution with a swirl added.
+            let energy = |x: &[Vector3<f64>], ax: &[Vector3<f64>]| {
+                x.iter().zip(ax).zip(&ay).map(|((xa, axa), b)| 0.5 * xa.dot(axa) - xa.dot(b)).sum::<f64>()
+            };
+            let mut x: Vec<Vector3<f64>> =
+                y.iter().zip(&op.c.p.x).map(|(v, p)| 0.5 * v + Vector3::new(-p.y, p.x, 0.0)).collect();
+            filter(&mut x, &op.filters);
+            let mut ax = vec![Vector3::zeros(); n];
+            op.apply(&x, &mut ax, &mut w.prl);
+            let before = energy(&x, &ax);
+            assert!(scale_guess(op, &mut x, &mut w, 0.0, 0.0));
+            let after = energy(&x, &w.ap);
+            assert!(after < before, "energy {after} after scaling, {before} before");
+            // A zero guess is left alone, without a product.
+            let mut zero = vec![Vector3::zeros(); n];
+            assert!(!scale_guess(op, &mut zero, &mut w, 0.0, 0.0));
+        });
+    }
 
     /// A sponge with pore water on the floor, pressed by a plate from above at 2 cm/s (its
     /// contacts constraints of the implicit system): a step's pressure response is close to
