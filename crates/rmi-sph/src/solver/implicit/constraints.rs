@@ -2,6 +2,7 @@
 //! each holds, the filter of Baraff and Witkin's modified PCG, and the impulse each exerted.
 
 use super::Op;
+use crate::solver::ctx::Ctx;
 use crate::solver::linalg::CgWork;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
@@ -74,6 +75,23 @@ pub(super) fn constraint_field(n: usize, cons: &[VelocityConstraint]) -> Vec<Fil
     f
 }
 
+/// Per solid, whether a constrained row of the operator reads its linearised stress: the
+/// constrained skeleton particles and their rest neighbours (a water particle's row reads
+/// none).
+pub(super) fn stress_rows(c: &Ctx, cons: &[VelocityConstraint]) -> Vec<bool> {
+    let nf = c.p.n_fluid;
+    let rest = c.rest;
+    let mut rows = vec![false; c.p.n_solid()];
+    for con in cons {
+        let Some(s) = (con.particle as usize).checked_sub(nf) else { continue };
+        rows[s] = true;
+        for e in rest.start[s] as usize..rest.start[s + 1] as usize {
+            rows[rest.nbr[e] as usize - nf] = true;
+        }
+    }
+    rows
+}
+
 /// Removes the constrained components of every particle's vector.
 pub(super) fn filter(x: &mut [Vector3<f64>], filters: &[Filter]) {
     x.par_iter_mut().zip(filters.par_iter()).for_each(|(xi, f)| f.apply(xi));
@@ -89,13 +107,13 @@ pub(super) fn precondition(minv: &[Matrix3<f64>], filters: &[Filter], a: usize, 
 
 /// What the constrained rows still lack after a solve, `A x - w.b` (N s), in the components
 /// each constraint holds: the impulse it exerted on its particle. Only the constrained rows
-/// of `A x` are evaluated (each reads the linearised stress of its rest neighbours, so the
-/// stress pass still covers every solid).
+/// of `A x` are evaluated, and the linearised stress only where they read it
+/// ([`stress_rows`]).
 pub(super) fn constraint_impulses(op: &Op, x: &[Vector3<f64>], w: &mut CgWork) -> Vec<Vector3<f64>> {
     if op.constraints.is_empty() {
         return Vec::new();
     }
-    op.stress_pass(x, &mut w.prl);
+    op.stress_pass_of_rows(x, &op.impulse_stress, &mut w.prl);
     op.constraints
         .iter()
         .map(|con| {

@@ -33,24 +33,46 @@ pub(super) fn linear_row(c: &Ctx, s: usize, prl: &[Matrix3<f64>], y: &[Vector3<f
 /// the rotation enters once per particle, not once per pair, so the pass reads only the rest
 /// data every CG iteration (it is memory-bound at fine resolution).
 pub(super) fn linear_prl(c: &Ctx, ef: &ElasticFields, y: &[Vector3<f64>], out: &mut [Matrix3<f64>]) {
-    let nf = c.p.n_fluid;
-    let rest = c.rest;
-    let dt = c.dt;
+    rmi_par::for_each_hot(
+        out,
+        #[inline(always)]
+        |s, prl| *prl = linear_prl_of(c, ef, y, s),
+    );
+}
+
+/// [`linear_prl`] of the solids marked in `rows` only; the others' entries keep what they held.
+pub(super) fn linear_prl_of_rows(
+    c: &Ctx,
+    ef: &ElasticFields,
+    y: &[Vector3<f64>],
+    rows: &[bool],
+    out: &mut [Matrix3<f64>],
+) {
     rmi_par::for_each_hot(
         out,
         #[inline(always)]
         |s, prl| {
-            let ya = y[nf + s];
-            let mut sum = Matrix3::zeros();
-            for e in rest.start[s] as usize..rest.start[s + 1] as usize {
-                let r = rest.nbr[e] as usize;
-                sum += (rest.v0[r - nf] * (y[r] - ya)) * rest.grad0[e].transpose();
+            if rows[s] {
+                *prl = linear_prl_of(c, ef, y, s);
             }
-            let grad = dt * sum * ef.rl[s].transpose();
-            let (mu, lam) = ef.moduli[s];
-            *prl = stress(&grad, mu, lam, 0.0) * ef.rl[s];
         },
     );
+}
+
+/// The linearised stress term of solid `s` ([`linear_prl`]).
+#[inline(always)]
+fn linear_prl_of(c: &Ctx, ef: &ElasticFields, y: &[Vector3<f64>], s: usize) -> Matrix3<f64> {
+    let nf = c.p.n_fluid;
+    let rest = c.rest;
+    let ya = y[nf + s];
+    let mut sum = Matrix3::zeros();
+    for e in rest.start[s] as usize..rest.start[s + 1] as usize {
+        let r = rest.nbr[e] as usize;
+        sum += (rest.v0[r - nf] * (y[r] - ya)) * rest.grad0[e].transpose();
+    }
+    let grad = c.dt * sum * ef.rl[s].transpose();
+    let (mu, lam) = ef.moduli[s];
+    stress(&grad, mu, lam, 0.0) * ef.rl[s]
 }
 
 /// Exact 3x3 diagonal block (w.r.t. y_s) of `-dt * F_lin`, divided by dt^2.
@@ -111,6 +133,14 @@ impl Op<'_> {
     pub(super) fn stress_pass(&self, y: &[Vector3<f64>], prl: &mut [Matrix3<f64>]) {
         if self.c.p.n_solid() > 0 {
             linear_prl(self.c, self.ef, y, prl);
+        }
+    }
+
+    /// The linearised stress of `y` at the solids marked in `rows` (the others' entries of
+    /// `prl` keep what they held).
+    pub(super) fn stress_pass_of_rows(&self, y: &[Vector3<f64>], rows: &[bool], prl: &mut [Matrix3<f64>]) {
+        if self.c.p.n_solid() > 0 {
+            linear_prl_of_rows(self.c, self.ef, y, rows, prl);
         }
     }
 }

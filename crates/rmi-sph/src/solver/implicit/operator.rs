@@ -2,7 +2,7 @@
 //! positions, its per-pair coefficient cache, its rows (also applied to the coarse unit
 //! translations), its block-Jacobi preconditioner and its coarse level.
 
-use super::constraints::{constraint_field, Filter, VelocityConstraint};
+use super::constraints::{constraint_field, stress_rows, Filter, VelocityConstraint};
 use super::elasticity::{coarse_strain, coarse_stress_times, diagonal_block, linear_row};
 use crate::config::{Preconditioner, ViscosityMode};
 use crate::neighbourhood::lists::{Nb, CHUNK};
@@ -75,6 +75,8 @@ pub struct Op<'a> {
     pub(super) coef: Vec<Vec<[f64; 2]>>,
     /// Contact constraints, and per particle the components they hold.
     pub(super) constraints: Vec<VelocityConstraint>,
+    /// Per solid, whether a constrained row reads its linearised stress.
+    pub(super) impulse_stress: Vec<bool>,
     pub(super) filters: Vec<Filter>,
     /// Inverted preconditioner blocks.
     pub(super) minv: Vec<Matrix3<f64>>,
@@ -122,6 +124,7 @@ impl<'a> Op<'a> {
             implicit_visc: s.viscosity_mode == ViscosityMode::Implicit && s.viscosity > 0.0,
             coef: buffers.coef,
             filters: constraint_field(c.p.len(), &constraints),
+            impulse_stress: stress_rows(c, &constraints),
             constraints,
             minv: buffers.minv,
             adhesion_force: buffers.adhesion_force,
