@@ -577,10 +577,7 @@ mod tests {
             let kick: Vec<Vector3<f64>> = vec![Vector3::new(0.01, 0.0, -0.02); n];
             let respond = |o: &Op| {
                 let mut w = CgWork::default();
-                for buf in [&mut w.r, &mut w.p, &mut w.ap, &mut w.b] {
-                    buf.resize(n, Vector3::zeros());
-                }
-                w.prl.resize(o.c.p.n_solid(), Matrix3::zeros());
+                w.resize(n, o.c.p.n_solid());
                 let mut dv = kick.clone();
                 let (stats, _) = super::super::pressure_response(o, &mut dv, None, &mut w, 0.0);
                 (dv, stats)

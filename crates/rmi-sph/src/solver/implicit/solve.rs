@@ -6,7 +6,7 @@ use super::hourglass::hourglass_force;
 use super::Op;
 use crate::solver::elasticity;
 use crate::solver::linalg::{pcg, CgStats, CgWork};
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Vector3;
 use rayon::prelude::*;
 
 /// Solves for v* and writes it into `v`, honouring `constraints` exactly (filtered PCG).
@@ -32,10 +32,7 @@ pub fn solve(
     let (c, ef, s) = (op.c, op.ef, op.s);
     let n = c.p.len();
     let nf = c.p.n_fluid;
-    for buf in [&mut w.r, &mut w.p, &mut w.ap, &mut w.b] {
-        buf.resize(n, Vector3::zeros());
-    }
-    w.prl.resize(c.p.n_solid(), Matrix3::zeros());
+    w.resize(n, c.p.n_solid());
     // Right-hand side m v + dt (F_exp + m g).
     {
         let vv: &[Vector3<f64>] = v;
@@ -236,7 +233,7 @@ mod tests {
     use crate::config::{BodyConfig, Shape};
     use crate::solver::linalg::CgWork;
     use crate::{presets, Simulation};
-    use nalgebra::{Matrix3, Vector3};
+    use nalgebra::Vector3;
 
     /// The response's guess is scaled to the multiple with the smallest energy-norm error: a
     /// multiple of the exact solution scales back to it (with its product), and any other
@@ -248,10 +245,7 @@ mod tests {
         sim.with_operator(|op| {
             let n = op.c.p.len();
             let mut w = CgWork::default();
-            for buf in [&mut w.r, &mut w.p, &mut w.ap, &mut w.b] {
-                buf.resize(n, Vector3::zeros());
-            }
-            w.prl.resize(op.c.p.n_solid(), Matrix3::zeros());
+            w.resize(n, op.c.p.n_solid());
             // A smooth, filtered velocity field as the exact solution y, and b = A y.
             let mut y: Vec<Vector3<f64>> = op.c.p.x.iter().map(|x| Vector3::new(x.z, -0.5 * x.x, 0.2 + x.y)).collect();
             filter(&mut y, &op.filters);

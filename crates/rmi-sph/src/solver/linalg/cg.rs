@@ -29,6 +29,17 @@ pub struct CgWork {
     pub(crate) prl: Vec<Matrix3<f64>>,
 }
 
+impl CgWork {
+    /// Sizes the vectors for `n` particles and the product's scratch for `n_solid` solids
+    /// (what [`pcg`] and its callers expect; contents are overwritten before they are read).
+    pub(crate) fn resize(&mut self, n: usize, n_solid: usize) {
+        for buf in [&mut self.r, &mut self.p, &mut self.ap, &mut self.b] {
+            buf.resize(n, Vector3::zeros());
+        }
+        self.prl.resize(n_solid, Matrix3::zeros());
+    }
+}
+
 /// A symmetric system over per-particle 3-vectors that [`pcg`] solves: its product, the
 /// filter of the components constraints hold, a block preconditioner and an optional coarse
 /// level. `scratch` is per-solid work space of the product (the linearised stress).
