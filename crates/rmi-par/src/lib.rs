@@ -69,27 +69,14 @@ where
     B: Send,
     F: Fn(usize, &mut A, &mut B) -> [f64; K] + Sync,
 {
-    let partial: Vec<[f64; K]> = a
-        .par_chunks_mut(REDUCE_CHUNK)
-        .zip(b.par_chunks_mut(REDUCE_CHUNK))
-        .enumerate()
-        .map(|(c, (ca, cb))| {
-            crate::cpu::hot(
-                #[inline(always)]
-                || {
-                    let mut s = [0.0; K];
-                    for (k, (x, y)) in ca.iter_mut().zip(cb.iter_mut()).enumerate() {
-                        let v = f(c * REDUCE_CHUNK + k, x, y);
-                        for (acc, vi) in s.iter_mut().zip(v) {
-                            *acc += vi;
-                        }
-                    }
-                    s
-                },
-            )
-        })
-        .collect();
-    std::array::from_fn(|k| partial.iter().map(|p| p[k]).sum())
+    let mut none = vec![(); a.len()];
+    for_each3_sum(
+        a,
+        b,
+        &mut none,
+        #[inline(always)]
+        |i, x, y, _| f(i, x, y),
+    )
 }
 
 /// [`for_each_sum`] over three arrays of equal length: `f(i, &mut a[i], &mut b[i], &mut c[i])`,
