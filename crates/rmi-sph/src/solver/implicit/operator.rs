@@ -182,12 +182,18 @@ impl<'a> Op<'a> {
         }
         // Terms on a's own translation are summed apart and added once.
         let mut own = Matrix3::from_diagonal_element(c.p.mass[a]);
-        // Pair terms f_a = K_ab (u_a - u_b), K = lap g x x^T - dt c I.
+        // Pair terms f_a = K_ab (u_a - u_b), K = lap g x x^T - dt c I. A pair within a's own
+        // aggregate adds -dt K_ab to `own` and +dt K_ab to the same block: nothing, so it is
+        // skipped (as are the hourglass springs within it below).
+        let ia = agg[a];
         let nb = c.nb.of(a);
         let cf = self.coefs(a);
         let xa = c.p.x[a];
         for k in self.coupled(a, &nb) {
             let b = nb.j[k] as usize;
+            if agg[b] == ia {
+                continue;
+            }
             let [lap_g, adh] = cf[k];
             let xab = xa - c.p.x[b];
             let kab = lap_g * xab * xab.transpose() - Matrix3::from_diagonal_element(dt * adh);
@@ -213,12 +219,14 @@ impl<'a> Op<'a> {
                 for (j, h) in strain.row(r) {
                     row.add(j, scale * coarse_stress_times(h, &w, ef.moduli[r], dt));
                 }
-                let hk = dt * dt * rest.hg_k[e];
-                own += Matrix3::from_diagonal_element(hk);
-                row.add(agg[nf + r], Matrix3::from_diagonal_element(-hk));
+                if agg[nf + r] != ia {
+                    let hk = dt * dt * rest.hg_k[e];
+                    own += Matrix3::from_diagonal_element(hk);
+                    row.add(agg[nf + r], Matrix3::from_diagonal_element(-hk));
+                }
             }
         }
-        row.add(agg[a], own);
+        row.add(ia, own);
     }
 
     /// Pairs of `a` that carry implicit terms: for water, its skeleton neighbours (and its
@@ -530,8 +538,10 @@ mod tests {
             let mut worst: f64 = 0.0;
             for j in 0..agg.len() {
                 let mut col = vec![Matrix3::zeros(); n];
-                for (a, m) in tl.az_column(j) {
-                    col[a as usize] = *m;
+                for (a, c) in col.iter_mut().enumerate() {
+                    if let Some((_, m)) = tl.az_row(a).find(|e| e.0 as usize == j) {
+                        *c = *m;
+                    }
                 }
                 let scale = col.iter().map(|m| m.abs().max()).fold(0.0, f64::max);
                 for k in 0..3 {

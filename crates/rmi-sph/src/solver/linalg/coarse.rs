@@ -155,17 +155,6 @@ impl<T: Copy + AddAssign + Send + Sync> BlockRows<T> {
     pub fn blocks(&self) -> usize {
         self.col.len()
     }
-
-    /// The same blocks by column (`ncol` columns): row j lists (row index, block) of column j
-    /// in increasing row order.
-    pub fn transpose(&self, ncol: usize) -> BlockRows<T> {
-        let entries = (0..self.start.len() - 1)
-            .flat_map(|a| (self.start[a]..self.start[a + 1]).map(move |e| (self.col[e as usize], (a as u32, e))));
-        let (start, items) = group(ncol, entries);
-        let col = items.iter().map(|&(a, _)| a).collect();
-        let blk = items.par_iter().map(|&(_, e)| self.blk[e as usize]).collect();
-        BlockRows { start, col, blk }
-    }
 }
 
 /// One row under construction: blocks summed per column, in order of first appearance.
@@ -220,13 +209,16 @@ impl<T: Copy + AddAssign> RowBuilder<T> {
     }
 }
 
-/// The coarse level of one step: aggregates, `A Z`, its transpose's index and `E`'s factor.
+/// Particles per partial sum of `(A Z)^T y`: fixed, so that the sum does not depend on the
+/// thread count.
+const SCATTER_CHUNK: usize = 1024;
+
+/// The coarse level of one step: aggregates, the rows of `A Z` and `E`'s factor.
 #[derive(Clone, Debug, Default)]
 pub struct TwoLevel {
     agg: Aggregates,
-    /// `(A Z)^T` by rows: per aggregate J the blocks `(A Z)_{a, J}` with their particle a, in
-    /// increasing particle order, stored contiguously so that `(A Z)^T y` streams them.
-    azt: BlockRows,
+    /// `A Z` by particle rows.
+    az: BlockRows,
     factor: Skyline,
 }
 
@@ -236,7 +228,6 @@ impl TwoLevel {
     /// factors it.
     pub fn new(agg: Aggregates, az: BlockRows) -> TwoLevel {
         let nagg = agg.len();
-        let azt = az.transpose(nagg);
         // E[I, J] = sum over the members b of I of (A Z)_{b, J} (Z is the identity on members).
         // One builder per worker: its column table spans every aggregate.
         let rows: Vec<Vec<(u32, Matrix3<f64>)>> = (0..nagg)
@@ -265,7 +256,7 @@ impl TwoLevel {
             })
             .collect();
         let factor = Skyline::factor(&sym);
-        TwoLevel { agg, azt, factor }
+        TwoLevel { agg, az, factor }
     }
 
     /// The aggregates.
@@ -274,44 +265,62 @@ impl TwoLevel {
         &self.agg
     }
 
-    /// Column `j` of `A Z`: (particle, 3x3 block) in increasing particle order.
+    /// Row `a` of `A Z`: (aggregate, 3x3 block).
     #[cfg(test)]
-    pub fn az_column(&self, j: usize) -> impl Iterator<Item = (u32, &Matrix3<f64>)> {
-        self.azt.row(j)
+    pub fn az_row(&self, a: usize) -> impl Iterator<Item = (u32, &Matrix3<f64>)> {
+        self.az.row(a)
     }
 
     /// `E^-1 (Z^T r - (A Z)^T y)`; `r` already filtered (so `Z^T r` is a sum over members) and
     /// `y` too (so the unfiltered rows of `A Z` give the filtered operator's `(S A Z)^T y`).
     pub fn coarse_correction(&self, r: &[Vector3<f64>], y: Option<&[Vector3<f64>]>) -> Vec<f64> {
-        let g: Vec<[f64; 3]> = (0..self.agg.len())
+        let nagg = self.agg.len();
+        // One pass over the particles: each adds its residual to its aggregate's entry and,
+        // with `y`, subtracts its row of A Z applied to y_a (the scatter of (A Z)^T y). A
+        // partial sum per fixed chunk of particles, the partials added in chunk order.
+        let n = r.len();
+        let partials: Vec<Vec<f64>> = (0..n.div_ceil(SCATTER_CHUNK))
             .into_par_iter()
-            .map(|i| {
-                let mut s = Vector3::zeros();
-                for &a in self.agg.members(i) {
-                    s += r[a as usize];
-                }
-                if let Some(y) = y {
-                    for (a, m) in self.azt.row(i) {
-                        s -= m.tr_mul(&y[a as usize]);
+            .map(|ci| {
+                let mut p = vec![0.0; 3 * nagg];
+                for a in ci * SCATTER_CHUNK..((ci + 1) * SCATTER_CHUNK).min(n) {
+                    let i = self.agg.of[a];
+                    if i != NONE {
+                        let i = 3 * i as usize;
+                        p[i] += r[a].x;
+                        p[i + 1] += r[a].y;
+                        p[i + 2] += r[a].z;
+                    }
+                    if let Some(y) = y {
+                        for (j, m) in self.az.row(a) {
+                            let t = m.tr_mul(&y[a]);
+                            let j = 3 * j as usize;
+                            p[j] -= t.x;
+                            p[j + 1] -= t.y;
+                            p[j + 2] -= t.z;
+                        }
                     }
                 }
-                [s.x, s.y, s.z]
+                p
             })
             .collect();
-        let mut g: Vec<f64> = g.into_iter().flatten().collect();
+        let mut g = vec![0.0; 3 * nagg];
+        for p in &partials {
+            g.iter_mut().zip(p).for_each(|(gi, pi)| *gi += pi);
+        }
         self.factor.solve(&mut g);
         g
     }
 
-    /// `r -= A Z c`, column by column in a fixed order (a scatter, so sequential); the rows are
-    /// unfiltered, so the caller filters `r` afterwards.
+    /// `r -= A Z c`, row by row; the rows are unfiltered, so the caller filters `r`
+    /// afterwards.
     pub fn subtract_az(&self, c: &[f64], r: &mut [Vector3<f64>]) {
-        for j in 0..self.agg.len() {
-            let cj = Vector3::new(c[3 * j], c[3 * j + 1], c[3 * j + 2]);
-            for (a, m) in self.azt.row(j) {
-                r[a as usize] -= m * cj;
+        r.par_iter_mut().enumerate().for_each(|(a, ra)| {
+            for (j, m) in self.az.row(a) {
+                let j = 3 * j as usize;
+                *ra -= m * Vector3::new(c[j], c[j + 1], c[j + 2]);
             }
-        }
+        });
     }
 
     /// `(Z c)_a`: the coarse value of `a`'s aggregate (zero outside the aggregates).
