@@ -82,15 +82,19 @@ pub struct PressureWork {
     /// Per particle `[q, q . x]` of the vector field being differentiated (the predicted
     /// velocity in the source pass, the pressure acceleration in the iterations).
     rq: Vec<Rec4>,
+    /// Per water particle `sum_b (1 - phi_b) V grad W_ab` over its skeleton neighbours (1/m).
+    solid_grad: Vec<Vector3<f64>>,
 }
 
 /// What the water-pair sums read in [`pairsum`] form: the lists' shifted positions, the
-/// neighbours' records and `sum_b V grad W_ab` over the water neighbours.
+/// neighbours' records and `sum_b V grad W_ab` over the water neighbours; and, where a pass
+/// takes its water-skeleton pairs in sum form, `PressureWork::solid_grad`.
 #[derive(Clone, Copy)]
 struct WaterPairs<'a> {
     x: &'a [Vector3<f64>],
     rec: &'a [Rec4],
     grad: &'a [Vector3<f64>],
+    solid_grad: Option<&'a [Vector3<f64>]>,
 }
 
 /// The volume factors of docs/physics.md §1 that the pressure passes need, per particle, so
@@ -151,9 +155,15 @@ fn accel(
         // -sum_b V (kappa_a + kappa_b) grad W_ab over the water pairs (see `pairsum`).
         let t = pairsum::weighted(&nb.j[..nb.n_fluid], &nb.gf()[..nb.n_fluid], w.rec);
         acc = -(ka * w.grad[a] + v * (w.x[a] * t.0[3] - t.xyz()));
-        for k in nb.n_fluid..nb.j.len() {
-            let b = nb.j[k] as usize;
-            acc -= (fs.from_solid[b] * v * ka) * nb.g(k);
+        // The skeleton pairs carry kappa_a alone: -kappa_a sum_b (1 - phi_b) V grad W_ab.
+        match w.solid_grad {
+            Some(sg) => acc -= ka * sg[a],
+            None => {
+                for k in nb.n_fluid..nb.j.len() {
+                    let b = nb.j[k] as usize;
+                    acc -= (fs.from_solid[b] * v * ka) * nb.g(k);
+                }
+            }
         }
     } else if solid_live {
         let r0a = rho0[a];
@@ -178,7 +188,8 @@ fn accel(
 /// Divergence-like sum `sum_b f V (q_a - q_b) . grad W_ab` over dynamic neighbours; `w.rec`
 /// holds the records `[q, q . x]` of the same `q`. `solid_live` false says that `q` is zero
 /// on every skeleton particle (the pressure accelerations of a skeleton without pressure):
-/// a skeleton row, which sums over skeleton neighbours only, is then +0 and is not summed.
+/// a skeleton row, which sums over skeleton neighbours only, is then +0 and is not summed,
+/// and with `w.solid_grad` a water row's skeleton pairs reduce to `q_a . solid_grad_a`.
 #[inline(always)]
 fn div(c: &Ctx, fs: &Factors, a: usize, q: &[Vector3<f64>], w: WaterPairs, solid_live: bool) -> f64 {
     let nb = c.nb.of(a);
@@ -188,9 +199,28 @@ fn div(c: &Ctx, fs: &Factors, a: usize, q: &[Vector3<f64>], w: WaterPairs, solid
     if c.p.is_fluid(a) {
         let t = pairsum::weighted(&nb.j[..nb.n_fluid], &nb.gf()[..nb.n_fluid], w.rec);
         s = qa.dot(&w.grad[a]) - v * (w.x[a].dot(&t.xyz()) - t.0[3]);
-        for k in nb.n_fluid..nb.j.len() {
-            let b = nb.j[k] as usize;
-            s += fs.from_solid[b] * v * (qa - q[b]).dot(&nb.g(k));
+        match w.solid_grad {
+            // q_a . sum f V grad W minus the skeleton's q_b part (a sum of zeros while no
+            // skeleton particle carries pressure, which the skip leaves out).
+            Some(sg) => {
+                s += qa.dot(&sg[a]);
+                if solid_live {
+                    let mut sq = 0.0;
+                    for k in nb.n_fluid..nb.j.len() {
+                        let b = nb.j[k] as usize;
+                        sq += fs.from_solid[b] * v * q[b].dot(&nb.g(k));
+                    }
+                    s -= sq;
+                }
+            }
+            // The difference form (the source pass: velocities have a common part that the
+            // sum form would subtract twice).
+            None => {
+                for k in nb.n_fluid..nb.j.len() {
+                    let b = nb.j[k] as usize;
+                    s += fs.from_solid[b] * v * (qa - q[b]).dot(&nb.g(k));
+                }
+            }
         }
     } else if solid_live {
         for k in nb.n_fluid..nb.j.len() {
@@ -234,6 +264,24 @@ pub fn solve(
     let x = &work.frame.x;
     work.rk.resize(n, Rec4::default());
     work.rq.resize(n, Rec4::default());
+    // Without a skeleton there are no such pairs, and the pure-water solve keeps its bits.
+    let with_skeleton = c.p.n_solid() > 0;
+    work.solid_grad.resize(if with_skeleton { n } else { 0 }, Vector3::zeros());
+    par::for_each_hot(
+        &mut work.solid_grad,
+        #[inline(always)]
+        |a, sg| {
+            let mut s = Vector3::zeros();
+            if c.p.is_fluid(a) {
+                let nb = c.nb.of(a);
+                for k in nb.n_fluid..nb.j.len() {
+                    s += (fs.from_solid[nb.j[k] as usize] * c.vol) * nb.g(k);
+                }
+            }
+            *sg = s;
+        },
+    );
+    let sg = with_skeleton.then_some(work.solid_grad.as_slice());
     let vv: &[Vector3<f64>] = v;
     par::for_each_hot(
         &mut work.rq,
@@ -241,7 +289,7 @@ pub fn solve(
         |a, r| *r = Rec4::vector_moment(&vv[a], &x[a]),
     );
     {
-        let w = WaterPairs { x, rec: &work.rq, grad: &dens.fluid_grad };
+        let w = WaterPairs { x, rec: &work.rq, grad: &dens.fluid_grad, solid_grad: None };
         let kdt2: &[f64] = kappa_dt2;
         par::for_each_hot3(
             &mut work.source,
@@ -274,7 +322,7 @@ pub fn solve(
     loop {
         {
             let kap: &[f64] = kappa;
-            let w = WaterPairs { x, rec: &work.rk, grad: &dens.fluid_grad };
+            let w = WaterPairs { x, rec: &work.rk, grad: &dens.fluid_grad, solid_grad: sg };
             par::for_each_hot2(
                 &mut work.ap,
                 &mut work.rq,
@@ -291,7 +339,7 @@ pub fn solve(
         let fused = {
             let ap: &[Vector3<f64>] = &work.ap;
             let source = &work.source;
-            let w = WaterPairs { x, rec: &work.rq, grad: &dens.fluid_grad };
+            let w = WaterPairs { x, rec: &work.rq, grad: &dens.fluid_grad, solid_grad: sg };
             par::for_each3_sum(
                 kappa,
                 &mut work.err,
@@ -333,7 +381,7 @@ pub fn solve(
     // Apply the pressure of the final kappa.
     {
         let kap: &[f64] = kappa;
-        let w = WaterPairs { x, rec: &work.rk, grad: &dens.fluid_grad };
+        let w = WaterPairs { x, rec: &work.rk, grad: &dens.fluid_grad, solid_grad: sg };
         par::for_each_hot2(
             v,
             kappa_dt2,
