@@ -5,10 +5,11 @@
 //! acceleration of a fluid pair is `-V (kappa_a + kappa_b) grad W`. The water-water part of
 //! every pair sum (most pairs of any scene) is evaluated in the position-free form of
 //! [`crate::neighbourhood::pairsum`]: each pass writes one 32-byte record per particle that the next pass
-//! gathers, so a pair costs one gather and a four-wide multiply-add. The skeleton's pairs keep
-//! the direct form; while no skeleton particle carries pressure (a compressible skeleton's
-//! own density stays below rest), the skeleton's rows of the iterations are exact zeros and
-//! are skipped.
+//! gathers, so a pair costs one gather and a four-wide multiply-add. While no skeleton particle
+//! carries pressure (a compressible skeleton's own density stays below rest), the skeleton's
+//! rows of the iterations are exact zeros and are skipped, and a water particle's skeleton
+//! pairs, which then involve its own values only, are one precomputed vector per particle
+//! (`sum_b (1 - phi_b) V grad W_ab`); otherwise the skeleton's pairs keep the direct form.
 
 use crate::neighbourhood::pairsum::{self, Frame, Rec4};
 use crate::solver::ctx::Ctx;
@@ -213,8 +214,8 @@ fn div(c: &Ctx, fs: &Factors, a: usize, q: &[Vector3<f64>], w: WaterPairs, solid
                     s -= sq;
                 }
             }
-            // The difference form (the source pass: velocities have a common part that the
-            // sum form would subtract twice).
+            // The difference form, for the source pass: neighbouring velocities share a
+            // common part, which the sum form would cancel only after rounding it.
             None => {
                 for k in nb.n_fluid..nb.j.len() {
                     let b = nb.j[k] as usize;
