@@ -23,6 +23,9 @@ pub struct DensityFields {
     pub skeleton_cover: Vec<f64>,
     /// Fluid: `sum_b V grad W_ab` over the fluid neighbours (1/m). Solid: 0.
     pub fluid_grad: Vec<Vector3<f64>>,
+    /// Fluid: `sum_b (1 - phi_b) V grad W_ab` over the skeleton neighbours (1/m), what the
+    /// pressure iterations read for a water particle's skeleton pairs. Solid: 0.
+    pub solid_grad: Vec<Vector3<f64>>,
     /// Fluid: `sum_k V_k grad W_ak` over the boundary neighbours (1/m). Solid: 0.
     pub boundary_grad: Vec<Vector3<f64>>,
     /// Fluid: `sum_k V_k v_k . grad W_ak` over the boundary neighbours with the bodies'
@@ -36,7 +39,7 @@ pub fn compute(c: &Ctx, out: &mut DensityFields) {
     for field in [&mut out.rho_ratio, &mut out.alpha, &mut out.porosity, &mut out.saturation, &mut out.skeleton_cover] {
         field.resize(n, 0.0);
     }
-    for field in [&mut out.fluid_grad, &mut out.boundary_grad] {
+    for field in [&mut out.fluid_grad, &mut out.solid_grad, &mut out.boundary_grad] {
         field.resize(n, Vector3::zeros());
     }
     out.boundary_flux.resize(n, 0.0);
@@ -49,12 +52,13 @@ pub fn compute(c: &Ctx, out: &mut DensityFields) {
         out.saturation.par_chunks_mut(hc),
         out.skeleton_cover.par_chunks_mut(hc),
         out.fluid_grad.par_chunks_mut(hc),
+        out.solid_grad.par_chunks_mut(hc),
         out.boundary_grad.par_chunks_mut(hc),
         out.boundary_flux.par_chunks_mut(hc),
     )
         .into_par_iter()
         .enumerate()
-        .for_each(|(ci, (rho, alpha, phi, sat, cover, fg, bg, bf))| {
+        .for_each(|(ci, (rho, alpha, phi, sat, cover, fg, sg, bg, bf))| {
             rmi_par::cpu::hot(
                 #[inline(always)]
                 || {
@@ -62,7 +66,8 @@ pub fn compute(c: &Ctx, out: &mut DensityFields) {
                         let f = particle(c, ci * hc + k);
                         (rho[k], alpha[k], phi[k], sat[k], cover[k]) =
                             (f.rho, f.alpha, f.porosity, f.saturation, f.cover);
-                        (fg[k], bg[k], bf[k]) = (f.fluid_grad, f.boundary_grad, f.boundary_flux);
+                        (fg[k], sg[k]) = (f.fluid_grad, f.solid_grad);
+                        (bg[k], bf[k]) = (f.boundary_grad, f.boundary_flux);
                     }
                 },
             )
@@ -77,6 +82,7 @@ struct Fields {
     saturation: f64,
     cover: f64,
     fluid_grad: Vector3<f64>,
+    solid_grad: Vector3<f64>,
     boundary_grad: Vector3<f64>,
     boundary_flux: f64,
 }
@@ -111,6 +117,9 @@ fn particle(c: &Ctx, a: usize) -> Fields {
         first = nb.n_fluid;
     }
     let fluid_grad = grad_sum;
+    // A water particle's skeleton pairs (all pairs from `first` on), kept for the pressure
+    // iterations, which would otherwise walk them again.
+    let mut solid_grad = Vector3::zeros();
     for k in first..nb.j.len() {
         let b = nb.j[k] as usize;
         let f = c.volume_factor(a, b);
@@ -119,6 +128,7 @@ fn particle(c: &Ctx, a: usize) -> Fields {
         grad_sum += gv;
         grad_sq += gv.norm_squared();
         if fluid {
+            solid_grad += gv;
             if k >= nb.n_fluid {
                 solid_cover += f * v * nb.w[k];
                 skeleton_cover += v * nb.w[k];
@@ -161,5 +171,15 @@ fn particle(c: &Ctx, a: usize) -> Fields {
         let cur_phi = (1.0 - (1.0 - phi) * same_shepard / cover0).max(MIN_LOCAL_POROSITY);
         (cur_phi, (fluid_sum / (cover0 * cur_phi)).min(1.0))
     };
-    Fields { rho: dens, alpha, porosity, saturation, cover: skeleton_cover, fluid_grad, boundary_grad, boundary_flux }
+    Fields {
+        rho: dens,
+        alpha,
+        porosity,
+        saturation,
+        cover: skeleton_cover,
+        fluid_grad,
+        solid_grad,
+        boundary_grad,
+        boundary_flux,
+    }
 }

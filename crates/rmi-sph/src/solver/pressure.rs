@@ -8,8 +8,9 @@
 //! gathers, so a pair costs one gather and a four-wide multiply-add. While no skeleton particle
 //! carries pressure (a compressible skeleton's own density stays below rest), the skeleton's
 //! rows of the iterations are exact zeros and are skipped, and a water particle's skeleton
-//! pairs, which then involve its own values only, are one precomputed vector per particle
-//! (`sum_b (1 - phi_b) V grad W_ab`); otherwise the skeleton's pairs keep the direct form.
+//! pairs, which then involve its own values only, are one vector per particle that the
+//! density pass keeps (`sum_b (1 - phi_b) V grad W_ab`); otherwise the skeleton's pairs keep
+//! the direct form.
 
 use crate::neighbourhood::pairsum::{self, Frame, Rec4};
 use crate::solver::ctx::Ctx;
@@ -83,13 +84,11 @@ pub struct PressureWork {
     /// Per particle `[q, q . x]` of the vector field being differentiated (the predicted
     /// velocity in the source pass, the pressure acceleration in the iterations).
     rq: Vec<Rec4>,
-    /// Per water particle `sum_b (1 - phi_b) V grad W_ab` over its skeleton neighbours (1/m).
-    solid_grad: Vec<Vector3<f64>>,
 }
 
 /// What the water-pair sums read in [`pairsum`] form: the lists' shifted positions, the
 /// neighbours' records and `sum_b V grad W_ab` over the water neighbours; and, where a pass
-/// takes its water-skeleton pairs in sum form, `PressureWork::solid_grad`.
+/// takes its water-skeleton pairs in sum form, [`DensityFields::solid_grad`].
 #[derive(Clone, Copy)]
 struct WaterPairs<'a> {
     x: &'a [Vector3<f64>],
@@ -266,23 +265,7 @@ pub fn solve(
     work.rk.resize(n, Rec4::default());
     work.rq.resize(n, Rec4::default());
     // Without a skeleton there are no such pairs, and the pure-water solve keeps its bits.
-    let with_skeleton = c.p.n_solid() > 0;
-    work.solid_grad.resize(if with_skeleton { n } else { 0 }, Vector3::zeros());
-    par::for_each_hot(
-        &mut work.solid_grad,
-        #[inline(always)]
-        |a, sg| {
-            let mut s = Vector3::zeros();
-            if c.p.is_fluid(a) {
-                let nb = c.nb.of(a);
-                for k in nb.n_fluid..nb.j.len() {
-                    s += (fs.from_solid[nb.j[k] as usize] * c.vol) * nb.g(k);
-                }
-            }
-            *sg = s;
-        },
-    );
-    let sg = with_skeleton.then_some(work.solid_grad.as_slice());
+    let sg = (c.p.n_solid() > 0).then_some(dens.solid_grad.as_slice());
     let vv: &[Vector3<f64>] = v;
     par::for_each_hot(
         &mut work.rq,
