@@ -9,17 +9,16 @@ use crate::neighbourhood::lists::{Nb, CHUNK};
 use crate::solver::ctx::Ctx;
 use crate::solver::density::DensityFields;
 use crate::solver::elasticity::ElasticFields;
-use crate::solver::linalg::coarse::{Aggregates, BlockRows, RowBuilder, TwoLevel};
+use crate::solver::linalg::coarse::{coarse_rows, Aggregates, BlockRows, RowBuilder, TwoLevel, NONE};
 use crate::solver::linalg::System;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
 /// Free skeleton particles from which [`Preconditioner::Auto`] uses the two-level
-/// preconditioner. Building `A Z` costs about as much as ten CG iterations per step, which
-/// pays where block Jacobi needs many more iterations than the two-level CG: a fine skeleton
-/// (16,000 particles at r = 2.5 mm) at tight tolerances, not the medium sponge at r = 5 mm
-/// (2,000); at the default tolerance the two break even on the fine skeleton
-/// (docs/benchmark-history.md). Trials resolve `auto` to block Jacobi themselves
+/// preconditioner. Assembling and factoring `E` costs about as much as three CG iterations
+/// per step, which pays where block Jacobi needs several more iterations than the two-level
+/// CG: a fine skeleton (16,000 particles at r = 2.5 mm), while the medium sponge at r = 5 mm
+/// (2,000) breaks even (docs/benchmark-history.md). Trials resolve `auto` to block Jacobi themselves
 /// (`TrialConfig::sim_config`).
 pub const TWO_LEVEL_MIN_SOLIDS: usize = 4000;
 
@@ -147,9 +146,9 @@ impl<'a> Op<'a> {
         OpBuffers { coef: self.coef, minv: self.minv, adhesion_force: self.adhesion_force }
     }
 
-    /// Aggregates, the rows of `A Z` and the factored coarse matrix (None without aggregates).
-    /// Pinned and constrained particles stay out of the aggregates: the coarse space then lies
-    /// in the constraints' admissible set without a filter on its columns.
+    /// Aggregates and the factored coarse matrix (None without aggregates). Pinned and
+    /// constrained particles stay out of the aggregates: the coarse space then lies in the
+    /// constraints' admissible set without a filter on its columns.
     fn coarse_level(&self) -> Option<TwoLevel> {
         let c = self.c;
         let nf = c.p.n_fluid;
@@ -158,75 +157,98 @@ impl<'a> Op<'a> {
         if agg.is_empty() {
             return None;
         }
-        let strain = coarse_strain(c, self.ef, &agg.of);
-        let az = BlockRows::build(
-            c.p.len(),
-            #[inline(always)]
-            |a, row| self.coarse_row(a, &agg.of, &strain, row),
-        );
-        Some(TwoLevel::new(agg, az))
+        let rows = self.coarse_matrix(&agg);
+        Some(TwoLevel::new(agg, rows))
     }
 
-    /// Row `a` of `A Z`: the operator of [`Op::row`] applied to the coarse unit translations
-    /// (`e_k` on every particle of an aggregate), term by term: mass, pair terms, wall
-    /// viscosity, elasticity and its hourglass springs. Not filtered: the CG filters where it
-    /// uses the rows, so they stay exact when a constraint is released after the build
-    /// ([`Op::release_tangential`]).
-    #[inline(always)]
-    fn coarse_row(&self, a: usize, agg: &[u32], strain: &BlockRows<Vector3<f64>>, row: &mut RowBuilder) {
+    /// The block rows of `E = Z^T A Z` over the aggregates `agg`, assembled from the
+    /// operator's terms without forming `A Z`.
+    pub(super) fn coarse_matrix(&self, agg: &Aggregates) -> Vec<Vec<(u32, Matrix3<f64>)>> {
+        let strain = coarse_strain(self.c, self.ef, &agg.of);
+        coarse_rows(
+            agg.len(),
+            || vec![NONE; self.c.p.n_solid()],
+            |i, row, seen| self.coarse_matrix_row(i, agg, &strain, seen, row),
+        )
+    }
+
+    /// Row `i` of `E = Z^T A Z`: the operator of [`Op::row`] between the unit translations of
+    /// aggregate `i` and of every other (`e_k` on each of its particles), term by term:
+    /// mass, pair terms, wall viscosity, hourglass springs and elasticity. Not filtered: `Z`
+    /// is zero on constrained particles. `seen` (per solid) marks the solids already counted
+    /// for this row.
+    ///
+    /// Elasticity enters through the coarse strains `h_rJ` of [`coarse_strain`]: a unit
+    /// translation of aggregate `J` gives solid `r` the displacement gradient
+    /// `dt e_k (x) h_rJ`, and the elastic energy pairs the strains of two translations at
+    /// every solid, so the block is `sum_r (dt V_r0) [P_x, P_y, P_z](h_rJ) . h_rI` over the
+    /// solids `r` whose strain translation `i` moves (its solids and their rest neighbours);
+    /// for solids of `i` the terms of their own force and of their neighbours' cancel to that.
+    fn coarse_matrix_row(
+        &self,
+        i: usize,
+        agg: &Aggregates,
+        strain: &BlockRows<Vector3<f64>>,
+        seen: &mut [u32],
+        row: &mut RowBuilder,
+    ) {
         let c = self.c;
         let nf = c.p.n_fluid;
         let dt = c.dt;
-        if a >= nf && c.rest.fixed[a - nf] {
-            return;
-        }
-        // Terms on a's own translation are summed apart and added once.
-        let mut own = Matrix3::from_diagonal_element(c.p.mass[a]);
-        // Pair terms f_a = K_ab (u_a - u_b), K = lap g x x^T - dt c I. A pair within a's own
-        // aggregate adds -dt K_ab to `own` and +dt K_ab to the same block: nothing, so it is
-        // skipped (as are the hourglass springs within it below).
-        let ia = agg[a];
-        let nb = c.nb.of(a);
-        let cf = self.coefs(a);
-        let xa = c.p.x[a];
-        for k in self.coupled(a, &nb) {
-            let b = nb.j[k] as usize;
-            if agg[b] == ia {
+        let of = &agg.of;
+        let iu = i as u32;
+        let rest = c.rest;
+        // Terms on i's own translation are summed apart and added once.
+        let mut own = Matrix3::zeros();
+        for &a in agg.members(i) {
+            let a = a as usize;
+            own += Matrix3::from_diagonal_element(c.p.mass[a]);
+            // Pair terms f_a = K_ab (u_a - u_b), K = lap g x x^T - dt c I. A pair within the
+            // aggregate adds -dt K_ab and +dt K_ab to the same block: nothing, so it is
+            // skipped (as are the hourglass springs within it below).
+            let nb = c.nb.of(a);
+            let cf = self.coefs(a);
+            let xa = c.p.x[a];
+            for k in self.coupled(a, &nb) {
+                let b = nb.j[k] as usize;
+                if of[b] == iu {
+                    continue;
+                }
+                let [lap_g, adh] = cf[k];
+                let xab = xa - c.p.x[b];
+                let kab = lap_g * xab * xab.transpose() - Matrix3::from_diagonal_element(dt * adh);
+                own -= dt * kab;
+                row.add(of[b], dt * kab);
+            }
+            if c.p.is_fluid(a) && self.implicit_visc && self.s.boundary_viscosity > 0.0 {
+                self.boundary_visc_terms(a, |_, coef, xak, g| own -= (dt * coef) * g * xak.transpose());
+            }
+            if a < nf {
                 continue;
             }
-            let [lap_g, adh] = cf[k];
-            let xab = xa - c.p.x[b];
-            let kab = lap_g * xab * xab.transpose() - Matrix3::from_diagonal_element(dt * adh);
-            own -= dt * kab;
-            row.add(agg[b], dt * kab);
-        }
-        if c.p.is_fluid(a) && self.implicit_visc && self.s.boundary_viscosity > 0.0 {
-            self.boundary_visc_terms(a, |_, coef, xak, g| own -= (dt * coef) * g * xak.transpose());
-        }
-        if a >= nf {
             let s = a - nf;
-            let rest = c.rest;
-            let ef = self.ef;
-            let vs = rest.v0[s];
-            let w = ef.rl[s] * rest.grad0_sum[s];
-            for (j, h) in strain.row(s) {
-                row.add(j, (-dt * vs) * coarse_stress_times(h, &w, ef.moduli[s], dt));
-            }
-            for e in rest.start[s] as usize..rest.start[s + 1] as usize {
-                let r = rest.nbr[e] as usize - nf;
-                let scale = -dt * vs * rest.v0[r];
-                let w = ef.rl[r] * rest.grad0[e];
-                for (j, h) in strain.row(r) {
-                    row.add(j, scale * coarse_stress_times(h, &w, ef.moduli[r], dt));
-                }
-                if agg[nf + r] != ia {
+            let edges = rest.start[s] as usize..rest.start[s + 1] as usize;
+            for e in edges.clone() {
+                let r = rest.nbr[e] as usize;
+                if of[r] != iu {
                     let hk = dt * dt * rest.hg_k[e];
                     own += Matrix3::from_diagonal_element(hk);
-                    row.add(agg[nf + r], Matrix3::from_diagonal_element(-hk));
+                    row.add(of[r], Matrix3::from_diagonal_element(-hk));
+                }
+            }
+            for r in std::iter::once(s).chain(rest.nbr[edges].iter().map(|&r| r as usize - nf)) {
+                if seen[r] == iu {
+                    continue;
+                }
+                seen[r] = iu;
+                let Some(hi) = strain.row(r).find(|e| e.0 == iu).map(|e| *e.1) else { continue };
+                let w = (dt * rest.v0[r]) * hi;
+                for (j, h) in strain.row(r) {
+                    row.add(j, coarse_stress_times(h, &w, self.ef.moduli[r], dt));
                 }
             }
         }
-        row.add(ia, own);
+        row.add(iu, own);
     }
 
     /// Pairs of `a` that carry implicit terms: for water, its skeleton neighbours (and its
@@ -465,10 +487,6 @@ impl System for Op<'_> {
         Op::apply_filtered_dot(self, y, out, prl)
     }
 
-    fn filter(&self, x: &mut [Vector3<f64>]) {
-        super::constraints::filter(x, &self.filters)
-    }
-
     #[inline(always)]
     fn filter_at(&self, a: usize, x: &mut Vector3<f64>) {
         self.filters[a].apply(x)
@@ -525,7 +543,7 @@ mod tests {
     }
 
     #[test]
-    fn coarse_rows_equal_the_operator_applied_to_aggregate_translations() {
+    fn coarse_matrix_equals_z_transpose_a_z() {
         let mut sim = pressed_sponge();
         sim.with_operator(|op| {
             let tl = op.coarse.as_ref().expect("two-level preconditioner configured");
@@ -533,26 +551,25 @@ mod tests {
             assert!(op.filters.iter().any(|f| *f != Filter::Free), "the scene must hold contacts");
             let agg = tl.aggregates();
             assert!(agg.len() > 8);
+            let rows = op.coarse_matrix(agg);
             let mut prl = vec![Matrix3::zeros(); op.c.p.n_solid()];
             let (mut y, mut out) = (vec![Vector3::zeros(); n], vec![Vector3::zeros(); n]);
+            let scale = rows.iter().flatten().map(|(_, m)| m.abs().max()).fold(0.0, f64::max);
             let mut worst: f64 = 0.0;
             for j in 0..agg.len() {
-                let mut col = vec![Matrix3::zeros(); n];
-                for (a, c) in col.iter_mut().enumerate() {
-                    if let Some((_, m)) = tl.az_row(a).find(|e| e.0 as usize == j) {
-                        *c = *m;
-                    }
-                }
-                let scale = col.iter().map(|m| m.abs().max()).fold(0.0, f64::max);
                 for k in 0..3 {
+                    // Column (j, k) of Z^T A Z: A applied to aggregate j's unit translation e_k,
+                    // summed over each aggregate's members.
                     y.iter_mut().for_each(|v| *v = Vector3::zeros());
                     for &a in agg.members(j) {
                         y[a as usize] = Vector3::ith(k, 1.0);
                     }
                     op.apply(&y, &mut out, &mut prl);
-                    for a in 0..n {
-                        let err = (out[a] - col[a].column(k)).abs().max() / scale;
-                        worst = worst.max(err);
+                    for (i, row) in rows.iter().enumerate() {
+                        let want = agg.members(i).iter().fold(Vector3::zeros(), |acc, &a| acc + out[a as usize]);
+                        let got =
+                            row.iter().find(|e| e.0 as usize == j).map_or(Vector3::zeros(), |e| e.1.column(k).into());
+                        worst = worst.max((want - got).abs().max() / scale);
                     }
                 }
             }

@@ -48,8 +48,6 @@ pub(crate) trait System: Sync {
     fn apply(&self, y: &[Vector3<f64>], out: &mut [Vector3<f64>], scratch: &mut [Matrix3<f64>]);
     /// `out = filter(A y)`; returns `y . out`.
     fn apply_filtered_dot(&self, y: &[Vector3<f64>], out: &mut [Vector3<f64>], scratch: &mut [Matrix3<f64>]) -> f64;
-    /// Removes the held components of every particle's vector.
-    fn filter(&self, x: &mut [Vector3<f64>]);
     /// Removes the held components of particle `a`'s vector `x`.
     fn filter_at(&self, a: usize, x: &mut Vector3<f64>);
     /// The preconditioned residual of particle `a`, filtered.
@@ -66,9 +64,8 @@ pub(crate) trait System: Sync {
 /// product.
 ///
 /// The preconditioner is block Jacobi `y = M^-1 r`, plus, when the operator has a coarse
-/// level ([`crate::solver::linalg::coarse`], A-DEF2), the coarse correction `z = y + Z E^-1 (Z^T r - (A Z)^T y)`;
-/// the guess is then first corrected on the coarse space, so that the residual is orthogonal
-/// to it. Each iteration is three parallel passes besides the stress pass (A p with the
+/// level ([`crate::solver::linalg::coarse`]), the additive coarse correction
+/// `z = y + Z E^-1 Z^T r`. Each iteration is three parallel passes besides the stress pass (A p with the
 /// filter and p . Ap; the r update with y, r . r and r . y; x and the new direction), and the
 /// coarse pass with r . z. The sums have the chunking of `rmi_par::sum`, so the iterates do not
 /// depend on how the passes are fused.
@@ -103,19 +100,11 @@ pub(crate) fn pcg<S: System>(
     );
     let rhs_norm = bb.sqrt();
     let bnorm = rhs_norm.max(rhs_floor).max(1e-300);
-    if let Some(tl) = op.coarse() {
-        // x += Z c, r -= A Z c with c = E^-1 Z^T r; A Z is stored unfiltered, so the residual
-        // is filtered again (Z is zero on constrained particles: x needs no filter).
-        let c0 = tl.coarse_correction(&w.r, None);
-        x.par_iter_mut().enumerate().for_each(|(a, xa)| *xa += tl.prolong(a, &c0));
-        tl.subtract_az(&c0, &mut w.r);
-        op.filter(&mut w.r);
-    }
-    // Given y = M^-1 r and r . y: adds the coarse correction to y (Z is zero on constrained
-    // particles, so it needs no filter of its own) and returns r . z.
+    // Given y = M^-1 r and r . y: adds the coarse correction Z E^-1 Z^T r to y (Z is zero on
+    // constrained particles, so it needs no filter of its own) and returns r . z.
     let coarse = |r: &[Vector3<f64>], y: &mut [Vector3<f64>], ry: f64| -> f64 {
         let Some(tl) = op.coarse() else { return ry };
-        let c = tl.coarse_correction(r, Some(y));
+        let c = tl.coarse_correction(r);
         let [rz] = rmi_par::for_each_sum(
             y,
             #[inline(always)]

@@ -9,15 +9,19 @@
 //! contact-constrained particles stay out of every aggregate, so the coarse vectors satisfy
 //! the constraints as they are. With `Z` the piecewise-constant prolongation,
 //! `E = Z^T A Z` the Galerkin coarse matrix and `y = M^-1 r` the block-Jacobi step, the
-//! preconditioner is A-DEF2 (Tang, Nabben, Vuik and Erlangga 2009):
+//! preconditioner is the additive two-level one (the "AD" of Tang, Nabben, Vuik and
+//! Erlangga 2009, "Comparison of two-level preconditioners derived from deflation, domain
+//! decomposition and multigrid methods"):
 //!
-//! `z = y + Z E^-1 (Z^T r - (A Z)^T y)`,
+//! `z = y + Z E^-1 Z^T r`.
 //!
-//! which with the starting guess `x0 = x + Z E^-1 Z^T r` keeps the residuals orthogonal to the
-//! coarse space, i.e. the CG never has to find the smooth modes itself (without that start
-//! it lost the orthogonality and took more iterations than block Jacobi). `A Z` is assembled
-//! once per step (about ten 3x3 blocks per particle, [`BlockRows`]), so an iteration costs
-//! one sparse product and one envelope solve ([`Skyline`]) besides the operator application.
+//! It is symmetric and positive definite for any symmetric positive definite `E`, so it needs
+//! neither a special starting guess nor `A Z` itself: `E` is assembled once per step straight
+//! from the operator's terms, and an iteration adds a sum over each aggregate's members and
+//! one envelope solve ([`Skyline`]). The deflation variants (A-DEF2), which keep the residual
+//! orthogonal to the coarse space, save a few per cent of the iterations here but need the
+//! rows of `A Z` every step and a product with them every iteration, which cost more than
+//! those iterations (docs/benchmark-history.md).
 
 use crate::solver::linalg::skyline::Skyline;
 use nalgebra::{Matrix3, Vector3};
@@ -89,8 +93,8 @@ fn group<I: Copy + Default>(n: usize, pairs: impl Iterator<Item = (u32, I)> + Cl
     (start, items)
 }
 
-/// Sparse block rows: per particle a list of (aggregate, block); the rows of `A Z` hold 3x3
-/// blocks.
+/// Sparse block rows: per row a list of (column, block), built in parallel; the coarse
+/// strains are one (aggregate, vector) list per solid.
 #[derive(Clone, Debug)]
 pub struct BlockRows<T = Matrix3<f64>> {
     start: Vec<u32>,
@@ -193,7 +197,7 @@ impl<T: Copy + AddAssign> RowBuilder<T> {
     }
 
     /// Empties the row, keeping its buffers.
-    fn clear(&mut self) {
+    pub(crate) fn clear(&mut self) {
         for &c in &self.cols {
             self.slot[c as usize] = NONE;
         }
@@ -209,40 +213,17 @@ impl<T: Copy + AddAssign> RowBuilder<T> {
     }
 }
 
-/// Particles per partial sum of `(A Z)^T y`: fixed, so that the sum does not depend on the
-/// thread count.
-const SCATTER_CHUNK: usize = 1024;
-
-/// The coarse level of one step: aggregates, the rows of `A Z` and `E`'s factor.
+/// The coarse level of one step: the aggregates and the factor of `E = Z^T A Z`.
 #[derive(Clone, Debug, Default)]
 pub struct TwoLevel {
     agg: Aggregates,
-    /// `A Z` by particle rows.
-    az: BlockRows,
     factor: Skyline,
 }
 
 impl TwoLevel {
-    /// Assembles `E = Z^T A Z` from the rows of `A Z` (unfiltered: `Z` is zero on constrained
-    /// particles and the identity on an aggregate's members, so `E` needs no filter) and
-    /// factors it.
-    pub fn new(agg: Aggregates, az: BlockRows) -> TwoLevel {
-        let nagg = agg.len();
-        // E[I, J] = sum over the members b of I of (A Z)_{b, J} (Z is the identity on members).
-        // One builder per worker: its column table spans every aggregate.
-        let rows: Vec<Vec<(u32, Matrix3<f64>)>> = (0..nagg)
-            .into_par_iter()
-            .map_init(RowBuilder::new, |b, i| {
-                b.clear();
-                for &a in agg.members(i) {
-                    for (j, m) in az.row(a as usize) {
-                        b.add(j, *m);
-                    }
-                }
-                b.cols.iter().copied().zip(b.blks.iter().copied()).collect()
-            })
-            .collect();
-        // Symmetrise: A is symmetric, E only up to round-off.
+    /// Factors `E` from its block rows (`rows[i]`: (aggregate, 3x3 block) with each column
+    /// once), symmetrised first: `A` is symmetric, `E` as assembled only up to round-off.
+    pub fn new(agg: Aggregates, rows: Vec<Vec<(u32, Matrix3<f64>)>>) -> TwoLevel {
         let sym: Vec<Vec<(u32, Matrix3<f64>)>> = rows
             .iter()
             .enumerate()
@@ -256,7 +237,7 @@ impl TwoLevel {
             })
             .collect();
         let factor = Skyline::factor(&sym);
-        TwoLevel { agg, az, factor }
+        TwoLevel { agg, factor }
     }
 
     /// The aggregates.
@@ -265,62 +246,16 @@ impl TwoLevel {
         &self.agg
     }
 
-    /// Row `a` of `A Z`: (aggregate, 3x3 block).
-    #[cfg(test)]
-    pub fn az_row(&self, a: usize) -> impl Iterator<Item = (u32, &Matrix3<f64>)> {
-        self.az.row(a)
-    }
-
-    /// `E^-1 (Z^T r - (A Z)^T y)`; `r` already filtered (so `Z^T r` is a sum over members) and
-    /// `y` too (so the unfiltered rows of `A Z` give the filtered operator's `(S A Z)^T y`).
-    pub fn coarse_correction(&self, r: &[Vector3<f64>], y: Option<&[Vector3<f64>]>) -> Vec<f64> {
-        let nagg = self.agg.len();
-        // One pass over the particles: each adds its residual to its aggregate's entry and,
-        // with `y`, subtracts its row of A Z applied to y_a (the scatter of (A Z)^T y). A
-        // partial sum per fixed chunk of particles, the partials added in chunk order.
-        let n = r.len();
-        let partials: Vec<Vec<f64>> = (0..n.div_ceil(SCATTER_CHUNK))
+    /// `c = E^-1 Z^T r`, three entries per aggregate; `r` already filtered. Each aggregate sums
+    /// its members in order, so the result does not depend on the thread count.
+    pub fn coarse_correction(&self, r: &[Vector3<f64>]) -> Vec<f64> {
+        let sums: Vec<Vector3<f64>> = (0..self.agg.len())
             .into_par_iter()
-            .map(|ci| {
-                let mut p = vec![0.0; 3 * nagg];
-                for a in ci * SCATTER_CHUNK..((ci + 1) * SCATTER_CHUNK).min(n) {
-                    let i = self.agg.of[a];
-                    if i != NONE {
-                        let i = 3 * i as usize;
-                        p[i] += r[a].x;
-                        p[i + 1] += r[a].y;
-                        p[i + 2] += r[a].z;
-                    }
-                    if let Some(y) = y {
-                        for (j, m) in self.az.row(a) {
-                            let t = m.tr_mul(&y[a]);
-                            let j = 3 * j as usize;
-                            p[j] -= t.x;
-                            p[j + 1] -= t.y;
-                            p[j + 2] -= t.z;
-                        }
-                    }
-                }
-                p
-            })
+            .map(|i| self.agg.members(i).iter().fold(Vector3::zeros(), |acc, &a| acc + r[a as usize]))
             .collect();
-        let mut g = vec![0.0; 3 * nagg];
-        for p in &partials {
-            g.iter_mut().zip(p).for_each(|(gi, pi)| *gi += pi);
-        }
+        let mut g: Vec<f64> = sums.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
         self.factor.solve(&mut g);
         g
-    }
-
-    /// `r -= A Z c`, row by row; the rows are unfiltered, so the caller filters `r`
-    /// afterwards.
-    pub fn subtract_az(&self, c: &[f64], r: &mut [Vector3<f64>]) {
-        r.par_iter_mut().enumerate().for_each(|(a, ra)| {
-            for (j, m) in self.az.row(a) {
-                let j = 3 * j as usize;
-                *ra -= m * Vector3::new(c[j], c[j + 1], c[j + 2]);
-            }
-        });
     }
 
     /// `(Z c)_a`: the coarse value of `a`'s aggregate (zero outside the aggregates).
@@ -331,6 +266,27 @@ impl TwoLevel {
             i => Vector3::new(c[3 * i as usize], c[3 * i as usize + 1], c[3 * i as usize + 2]),
         }
     }
+}
+
+/// The block rows of a coarse matrix, built in parallel: `row(i, out, scratch)` pushes the
+/// blocks of aggregate `i`'s row into `out` (a column may repeat; repeats are summed in push
+/// order), with `scratch` a worker's own work space from `scratch()`. A row depends only on
+/// its own pushes, so the result does not depend on the thread count.
+pub fn coarse_rows<S, F>(n: usize, scratch: impl Fn() -> S + Sync + Send, row: F) -> Vec<Vec<(u32, Matrix3<f64>)>>
+where
+    F: Fn(usize, &mut RowBuilder, &mut S) + Sync,
+{
+    (0..n)
+        .into_par_iter()
+        .map_init(
+            || (RowBuilder::new(), scratch()),
+            |(b, s), i| {
+                b.clear();
+                row(i, b, s);
+                b.cols.iter().copied().zip(b.blks.iter().copied()).collect()
+            },
+        )
+        .collect()
 }
 
 #[cfg(test)]
