@@ -2,7 +2,8 @@
 //! drains under gravity. Prints particle counts, solver figures and retained water over time.
 //!
 //! `demo [--radius 0.005] [--seconds 0.3] [--threads 2] [--preconditioner auto|two_level|
-//! block_jacobi|identity] [--coarse-cell 4] [--cg-tolerance 3e-3] [--single-solve]`; the last
+//! block_jacobi|identity] [--coarse-cell 4] [--coarse-steps 10] [--cg-tolerance 3e-3]
+//! [--single-solve]`; the last
 //! line is a checksum of the final state, for comparing builds and thread counts bit for bit.
 //! `--cg-tolerance 1e-4` is the reference PIISPH's setting; `--single-solve` sets
 //! `pressure.single_solve`.
@@ -13,7 +14,15 @@ use std::time::Instant;
 
 fn main() {
     let args = Args::parse(
-        &["--radius", "--seconds", "--threads", "--preconditioner", "--coarse-cell", "--cg-tolerance"],
+        &[
+            "--radius",
+            "--seconds",
+            "--threads",
+            "--preconditioner",
+            "--coarse-cell",
+            "--coarse-steps",
+            "--cg-tolerance",
+        ],
         &["--single-solve"],
     );
     let radius: f64 = args.value("--radius", 0.005);
@@ -28,6 +37,7 @@ fn main() {
         };
     }
     cfg.cg.coarse_cell = args.value("--coarse-cell", cfg.cg.coarse_cell);
+    cfg.cg.coarse_steps = args.value("--coarse-steps", cfg.cg.coarse_steps);
     cfg.cg.tolerance = args.value("--cg-tolerance", cfg.cg.tolerance);
     cfg.pressure.single_solve = args.flag("--single-solve");
     let mut sim = match Simulation::new(cfg, Some(threads)) {

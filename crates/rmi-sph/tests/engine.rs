@@ -36,17 +36,29 @@ fn one_two_and_three_threads_are_bit_identical() {
 fn snapshot_continuation_is_bit_identical() {
     for (prec, cfg) in preconditioned_sponges() {
         let mut a = Simulation::new(cfg, Some(2)).unwrap();
-        run(&mut a, 20);
+        // Between two assemblies of the coarse matrix (every `cg.coarse_steps` = 10), and the
+        // continuation crosses a re-sort of the water (every 25 steps).
+        run(&mut a, 23);
         let dir = std::env::temp_dir().join(format!("rmi-snap-{}-{prec:?}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("state.rmisnap");
         a.save(&path).unwrap();
+        let held = a.snapshot();
         run(&mut a, 30);
         // Another thread count on purpose: the continuation must not depend on it.
         let mut b = Simulation::load(&path, Some(1)).unwrap();
-        assert_eq!(b.step_count(), 20);
+        assert_eq!(b.step_count(), 23);
         run(&mut b, 30);
         assert!(bits(&a) == bits(&b), "{prec:?}: continuation from the snapshot differs");
+        if prec == Preconditioner::TwoLevel {
+            // The coarse matrix in use is part of the state: without it the continuation
+            // assembles a new one at once and differs.
+            let mut without = held.clone();
+            assert!(without.coarse.take().is_some_and(|m| m.step < 23 && m.step + 10 > 23));
+            let mut c = Simulation::from_snapshot(without, Some(2)).unwrap();
+            run(&mut c, 30);
+            assert!(bits(&a) != bits(&c), "the coarse matrix must matter to the continuation");
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
@@ -127,6 +139,10 @@ fn invalid_config_errors_name_the_field() {
     assert!(e.contains("scene.porous_blocks[0].material.youngs_modulus") && e.contains("-3"), "{e}");
     let e = Simulation::new(small_sponge(), Some(0)).unwrap_err().to_string();
     assert!(e.contains("num_threads"), "{e}");
+    let mut cfg = small_sponge();
+    cfg.cg.coarse_steps = 0;
+    let e = Simulation::new(cfg, Some(1)).unwrap_err().to_string();
+    assert!(e.contains("cg.coarse_steps") && e.contains("[1, 10000]"), "{e}");
     let e = SimConfig::from_json(r#"{"dt": "fast"}"#).unwrap_err().to_string();
     assert!(e.contains("dt") || e.contains("invalid type"), "{e}");
 }

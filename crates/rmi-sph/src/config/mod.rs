@@ -302,6 +302,12 @@ pub struct CgConfig {
     pub warm_start: bool,
     /// Edge length of the two-level preconditioner's aggregates, in particle spacings.
     pub coarse_cell: f64,
+    /// Steps that one coarse matrix of the two-level preconditioner serves before it is
+    /// assembled again (1: every step). The additive two-level preconditioner stays
+    /// symmetric positive definite with a matrix from an earlier step, so an older one costs
+    /// iterations, never correctness; it is assembled anew sooner when a contact constrains
+    /// a particle inside an aggregate.
+    pub coarse_steps: u32,
 }
 
 impl Default for CgConfig {
@@ -312,6 +318,7 @@ impl Default for CgConfig {
             preconditioner: Preconditioner::Auto,
             warm_start: true,
             coarse_cell: 4.0,
+            coarse_steps: 10,
         }
     }
 }

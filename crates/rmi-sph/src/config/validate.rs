@@ -107,6 +107,9 @@ impl SimConfig {
             return Err(RmiError::config("cg.max_iterations", self.cg.max_iterations, "an integer in [1, 10000]"));
         }
         range("cg.coarse_cell", self.cg.coarse_cell, 1.0, 64.0, "particle spacings")?;
+        if self.cg.coarse_steps == 0 || self.cg.coarse_steps > 10_000 {
+            return Err(RmiError::config("cg.coarse_steps", self.cg.coarse_steps, "an integer in [1, 10000] (steps)"));
+        }
         range("max_velocity", self.max_velocity, 1e-3, 1e4, "m/s")?;
         if !(1..=3).contains(&self.neighbour_reach) {
             return Err(RmiError::config("neighbour_reach", self.neighbour_reach, "an integer in [1, 3] (cells)"));

@@ -5,6 +5,8 @@ use super::Simulation;
 use crate::config::SimConfig;
 use crate::error::{Result, RmiError};
 use crate::solver::implicit;
+pub use crate::solver::linalg::coarse::CoarseMatrix;
+use crate::solver::linalg::coarse::TwoLevel;
 use crate::world::boundary::BodyState;
 use crate::world::particles::{Particles, SolidState};
 use crate::world::scene;
@@ -14,8 +16,10 @@ use std::io::Write;
 
 /// Format version written into every snapshot (3: a checksum follows the payload; 4: per-particle
 /// contact loads; 5: the config's `pressure.single_solve`; 6: `response_prev` holds the last
-/// pressure response itself, no longer its drag correction; 7: `vstar_prev`, the last v*).
-pub const VERSION: u32 = 7;
+/// pressure response itself, no longer its drag correction; 7: `vstar_prev`, the last v*; 8:
+/// the two-level preconditioner's coarse matrix, which serves several steps, and the config's
+/// `cg.coarse_steps`).
+pub const VERSION: u32 = 8;
 const MAGIC: &[u8; 8] = b"RMISNAP\0";
 /// Bytes of the checksum after the payload.
 const SUM_LEN: usize = 8;
@@ -83,6 +87,9 @@ pub struct Snapshot {
     /// the previous update, which a velocity changed from or to zero leaves behind that of
     /// the body, so they are state of their own.
     pub boundary_velocities: Vec<Vector3<f64>>,
+    /// The two-level preconditioner's coarse matrix in use, if any (it serves
+    /// `cg.coarse_steps` steps).
+    pub coarse: Option<CoarseMatrix>,
 }
 
 impl Snapshot {
@@ -136,6 +143,9 @@ impl Snapshot {
             || !self.time.is_finite()
         {
             return Err(RmiError::State("snapshot contains non-finite values".into()));
+        }
+        if let Some(m) = &self.coarse {
+            m.check(n).map_err(|e| RmiError::State(format!("the snapshot's coarse matrix is not valid: {e}")))?;
         }
         self.config.validate().map_err(|e| RmiError::State(format!("the snapshot's config is not valid: {e}")))
     }
@@ -293,6 +303,7 @@ impl Simulation {
             contact_load: self.contact_load.clone(),
             bodies: self.bnd.bodies.iter().map(|b| b.state.clone()).collect(),
             boundary_velocities: self.bnd.v.clone(),
+            coarse: self.op_buffers.coarse.as_ref().map(|tl| tl.matrix().clone()),
         }
     }
 
@@ -333,6 +344,7 @@ impl Simulation {
         fresh.response_prev = s.response_prev;
         fresh.vstar_prev = s.vstar_prev;
         fresh.contact_load = s.contact_load;
+        fresh.op_buffers.coarse = s.coarse.map(|m| std::sync::Arc::new(pool.install(|| TwoLevel::new(m))));
         fresh.kappa = vec![0.0; n];
         fresh.acc = vec![Vector3::zeros(); n];
         for (b, st) in fresh.bnd.bodies.iter_mut().zip(s.bodies) {

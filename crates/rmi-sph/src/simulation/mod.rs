@@ -12,7 +12,7 @@ mod io;
 mod queries;
 mod step;
 
-pub use io::{fnv1a64, read_limited, read_state, seal, unseal, write_atomic, Snapshot};
+pub use io::{fnv1a64, read_limited, read_state, seal, unseal, write_atomic, CoarseMatrix, Snapshot};
 pub use step::StepStats;
 
 use crate::config::SimConfig;
@@ -229,6 +229,8 @@ impl Simulation {
         self.contact_load.iter_mut().for_each(|a| *a = 0.0);
         self.time = 0.0;
         self.step = 0;
+        // The soak's coarse level was assembled with its own drag and pins.
+        self.op_buffers.coarse = None;
         self.update_fields();
         Ok(())
     }

@@ -41,8 +41,8 @@ pub struct StepStats {
     pub seconds: [f64; 6],
 }
 
-/// The implicit solve's settings from the config.
-fn nonpressure_settings(cfg: &SimConfig) -> NonPressureSettings {
+/// The implicit solve's settings from the config, for the step that follows `step` completed ones.
+fn nonpressure_settings(cfg: &SimConfig, step: u64) -> NonPressureSettings {
     NonPressureSettings {
         viscosity: cfg.fluid.viscosity,
         boundary_viscosity: cfg.fluid.boundary_viscosity,
@@ -52,6 +52,8 @@ fn nonpressure_settings(cfg: &SimConfig) -> NonPressureSettings {
         preconditioner: cfg.cg.preconditioner,
         warm_start: cfg.cg.warm_start,
         coarse_cell: cfg.cg.coarse_cell * cfg.spacing(),
+        coarse_steps: cfg.cg.coarse_steps,
+        step,
     }
 }
 
@@ -126,6 +128,9 @@ impl Simulation {
         apply(&mut self.dv_prev, &perm);
         apply(&mut self.response_prev, &perm);
         apply(&mut self.vstar_prev, &perm);
+        if let Some(tl) = &mut self.op_buffers.coarse {
+            *tl = std::sync::Arc::new(tl.permuted(&perm));
+        }
         // Fields of the last step, so that accessors stay aligned with the particles.
         for f in [
             &mut self.kappa,
@@ -175,7 +180,7 @@ impl Simulation {
         density::compute(&ctx, &mut self.dens);
         elasticity::rotations(&ctx, &mut self.solid.rotation, &mut self.ef.ftil);
         elasticity::prepare(&ctx, &self.solid.rotation, &self.dens.saturation, &mut self.ef);
-        let nps = nonpressure_settings(cfg);
+        let nps = nonpressure_settings(cfg, self.step);
         let detected =
             contact::detect(&self.p, &self.nbb, &self.bnd, cfg.particle_radius, cfg.dt, &self.contact_load, None);
         let mut cons: Vec<_> = detected.iter().map(|d| d.0).collect();
@@ -243,7 +248,7 @@ impl Simulation {
         }
         let t2 = Instant::now();
         // 6. Strongly coupled implicit non-pressure solve.
-        let nps = nonpressure_settings(cfg);
+        let nps = nonpressure_settings(cfg, self.step);
         let v_old = self.p.v.clone();
         let kappa_dt2_old = self.kappa_dt2.clone();
         let mut v = self.p.v.clone();
@@ -256,6 +261,7 @@ impl Simulation {
         let mut contacts: Vec<Contact> = Vec::with_capacity(detected.len());
         let cons: Vec<_> = detected.iter().map(|d| d.0).collect();
         let buffers = std::mem::take(&mut self.op_buffers);
+        let coarse_before = buffers.coarse.clone();
         let mut system = implicit.then(|| implicit::Op::with_buffers(&ctx, &self.dens, &self.ef, &nps, cons, buffers));
         let nf = self.p.n_fluid;
         let fixed = &self.rest.fixed;
@@ -428,6 +434,7 @@ impl Simulation {
             self.vstar_prev = undo.vstar_prev;
             self.solid.rotation = undo.rotation;
             self.kappa = undo.kappa;
+            self.op_buffers.coarse = coarse_before;
             std::mem::swap(&mut self.dens, &mut self.dens_last);
             let reason = if vmax.is_finite() {
                 format!("particle speed {vmax:.3} m/s exceeds max_velocity = {} m/s", cfg.max_velocity)

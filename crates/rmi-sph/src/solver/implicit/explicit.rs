@@ -96,6 +96,8 @@ pub fn coupling_forces(c: &Ctx, dens: &DensityFields, v: &[Vector3<f64>]) -> Vec
         preconditioner: Preconditioner::Identity,
         warm_start: false,
         coarse_cell: 0.0,
+        coarse_steps: 1,
+        step: 0,
     };
     let ef = ElasticFields::default();
     let op = Op::new(c, dens, &ef, &s, Vec::new());

@@ -9,10 +9,11 @@ use crate::neighbourhood::lists::{Nb, CHUNK};
 use crate::solver::ctx::Ctx;
 use crate::solver::density::DensityFields;
 use crate::solver::elasticity::ElasticFields;
-use crate::solver::linalg::coarse::{coarse_rows, Aggregates, BlockRows, RowBuilder, TwoLevel, NONE};
+use crate::solver::linalg::coarse::{coarse_rows, Aggregates, BlockRows, CoarseMatrix, RowBuilder, TwoLevel, NONE};
 use crate::solver::linalg::System;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
+use std::sync::Arc;
 
 /// Free skeleton particles from which [`Preconditioner::Auto`] uses the two-level
 /// preconditioner. Assembling and factoring `E` costs about as much as three CG iterations
@@ -41,17 +42,24 @@ pub struct NonPressureSettings {
     pub warm_start: bool,
     /// Aggregate edge length of the two-level preconditioner (m).
     pub coarse_cell: f64,
+    /// Steps one coarse matrix serves ([`crate::config::CgConfig::coarse_steps`]).
+    pub coarse_steps: u32,
+    /// Steps completed before this one: the age of a kept coarse matrix.
+    pub step: u64,
 }
 
-/// The storage of an [`Op`]'s per-step caches (pair coefficients, preconditioner blocks,
-/// adhesion forces), handed from one step's operator to the next: a fresh allocation of
-/// this size each step costs more than filling it (the allocator returns the memory to the
-/// system and takes it back zeroed).
+/// What one step's [`Op`] hands to the next: the storage of its per-step caches (pair
+/// coefficients, preconditioner blocks, adhesion forces; a fresh allocation of this size
+/// each step costs more than filling it, as the allocator returns the memory to the system
+/// and takes it back zeroed) and its coarse level, which serves
+/// [`NonPressureSettings::coarse_steps`] steps. The coarse level is state: a snapshot keeps
+/// it, so that a restored run continues with the same one.
 #[derive(Debug, Default)]
 pub struct OpBuffers {
     coef: Vec<Vec<[f64; 2]>>,
     minv: Vec<Matrix3<f64>>,
     adhesion_force: Vec<Vector3<f64>>,
+    pub(crate) coarse: Option<Arc<TwoLevel>>,
 }
 
 /// The step's implicit system: the operator `A y = m y - dt F_lin(y)` at the current
@@ -83,7 +91,7 @@ pub struct Op<'a> {
     /// implicit solve's right-hand side.
     pub(super) adhesion_force: Vec<Vector3<f64>>,
     /// Coarse level of the two-level preconditioner.
-    pub(super) coarse: Option<TwoLevel>,
+    pub(super) coarse: Option<Arc<TwoLevel>>,
 }
 impl<'a> Op<'a> {
     /// The system of this step: current densities, the per-pair coefficient cache, the
@@ -136,14 +144,23 @@ impl<'a> Op<'a> {
             _ => false,
         };
         if two_level {
-            op.coarse = op.coarse_level();
+            // The kept coarse level while it is young enough and no constrained particle sits
+            // in one of its aggregates (the coarse space must lie in the admissible set).
+            op.coarse = buffers
+                .coarse
+                .filter(|tl| {
+                    s.step < tl.step() + u64::from(s.coarse_steps)
+                        && tl.aggregates().of.len() == c.p.len()
+                        && op.filters.iter().zip(&tl.aggregates().of).all(|(f, &i)| *f == Filter::Free || i == NONE)
+                })
+                .or_else(|| op.coarse_level().map(Arc::new));
         }
         op
     }
 
     /// The storage of the caches, for the next step's operator.
     pub fn into_buffers(self) -> OpBuffers {
-        OpBuffers { coef: self.coef, minv: self.minv, adhesion_force: self.adhesion_force }
+        OpBuffers { coef: self.coef, minv: self.minv, adhesion_force: self.adhesion_force, coarse: self.coarse }
     }
 
     /// Aggregates and the factored coarse matrix (None without aggregates). Pinned and
@@ -158,7 +175,7 @@ impl<'a> Op<'a> {
             return None;
         }
         let rows = self.coarse_matrix(&agg);
-        Some(TwoLevel::new(agg, rows))
+        Some(TwoLevel::new(CoarseMatrix { step: self.s.step, of: agg.of, rows }))
     }
 
     /// The block rows of `E = Z^T A Z` over the aggregates `agg`, assembled from the
@@ -498,7 +515,7 @@ impl System for Op<'_> {
     }
 
     fn coarse(&self) -> Option<&TwoLevel> {
-        self.coarse.as_ref()
+        self.coarse.as_deref()
     }
 }
 

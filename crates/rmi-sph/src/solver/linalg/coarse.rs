@@ -26,6 +26,7 @@
 use crate::solver::linalg::skyline::Skyline;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::ops::AddAssign;
 
@@ -53,8 +54,13 @@ impl Aggregates {
                 of[a] = *ids.entry(key).or_insert(next);
             }
         }
-        let (start, members) =
-            group(ids.len(), of.iter().enumerate().filter(|e| *e.1 != NONE).map(|(a, &i)| (i, a as u32)));
+        let n = ids.len();
+        Aggregates::from_ids(of, n)
+    }
+
+    /// Aggregates from each particle's id (`0..n`, [`NONE`] outside).
+    pub fn from_ids(of: Vec<u32>, n: usize) -> Aggregates {
+        let (start, members) = group(n, of.iter().enumerate().filter(|e| *e.1 != NONE).map(|(a, &i)| (i, a as u32)));
         Aggregates { of, start, members }
     }
 
@@ -213,17 +219,53 @@ impl<T: Copy + AddAssign> RowBuilder<T> {
     }
 }
 
-/// The coarse level of one step: the aggregates and the factor of `E = Z^T A Z`.
+/// A coarse matrix as assembled: the step it was assembled in (steps completed before it),
+/// each particle's aggregate ([`NONE`] outside; ids `0..rows.len()`) and the block rows of
+/// `E = Z^T A Z` (each column once per row). What a snapshot keeps of the coarse level.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct CoarseMatrix {
+    /// Steps completed when it was assembled.
+    pub step: u64,
+    /// Aggregate of each dynamic particle.
+    pub of: Vec<u32>,
+    /// Block rows of `E`: (aggregate, 3x3 block).
+    pub rows: Vec<Vec<(u32, Matrix3<f64>)>>,
+}
+
+impl CoarseMatrix {
+    /// Whether its aggregate ids and columns are in range for `n` particles and every block
+    /// is finite; the problem in words otherwise.
+    pub fn check(&self, n: usize) -> Result<(), String> {
+        let m = self.rows.len();
+        if self.of.len() != n {
+            return Err(format!("its aggregates cover {} particles, expected {n}", self.of.len()));
+        }
+        if self.of.iter().any(|&i| i != NONE && i as usize >= m) {
+            return Err(format!("a particle's aggregate is outside 0..{m}"));
+        }
+        for row in &self.rows {
+            if row.iter().any(|(j, b)| *j as usize >= m || !b.iter().all(|x| x.is_finite())) {
+                return Err(format!("a block is non-finite or its column outside 0..{m}"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The coarse level: the aggregates and the factor of `E = Z^T A Z`, with the matrix it was
+/// factored from.
 #[derive(Clone, Debug, Default)]
 pub struct TwoLevel {
     agg: Aggregates,
     factor: Skyline,
+    matrix: CoarseMatrix,
 }
 
 impl TwoLevel {
-    /// Factors `E` from its block rows (`rows[i]`: (aggregate, 3x3 block) with each column
-    /// once), symmetrised first: `A` is symmetric, `E` as assembled only up to round-off.
-    pub fn new(agg: Aggregates, rows: Vec<Vec<(u32, Matrix3<f64>)>>) -> TwoLevel {
+    /// Factors `E` from its block rows, symmetrised first: `A` is symmetric, `E` as assembled
+    /// only up to round-off. `matrix` must pass [`CoarseMatrix::check`].
+    pub fn new(matrix: CoarseMatrix) -> TwoLevel {
+        let rows = &matrix.rows;
         let sym: Vec<Vec<(u32, Matrix3<f64>)>> = rows
             .iter()
             .enumerate()
@@ -237,13 +279,34 @@ impl TwoLevel {
             })
             .collect();
         let factor = Skyline::factor(&sym);
-        TwoLevel { agg, factor }
+        let agg = Aggregates::from_ids(matrix.of.clone(), rows.len());
+        TwoLevel { agg, factor, matrix }
+    }
+
+    /// The matrix it was factored from.
+    pub fn matrix(&self) -> &CoarseMatrix {
+        &self.matrix
+    }
+
+    /// Steps completed when its matrix was assembled.
+    pub fn step(&self) -> u64 {
+        self.matrix.step
     }
 
     /// The aggregates.
-    #[cfg(test)]
     pub fn aggregates(&self) -> &Aggregates {
         &self.agg
+    }
+
+    /// The same coarse level after the particles were permuted (`perm[new] = old` over the
+    /// first `perm.len()` particles): members move with their particles; `E` is unchanged.
+    pub fn permuted(&self, perm: &[usize]) -> TwoLevel {
+        let mut of = self.matrix.of.clone();
+        for (new, &old) in perm.iter().enumerate() {
+            of[new] = self.matrix.of[old];
+        }
+        let agg = Aggregates::from_ids(of.clone(), self.matrix.rows.len());
+        TwoLevel { agg, factor: self.factor.clone(), matrix: CoarseMatrix { of, ..self.matrix.clone() } }
     }
 
     /// `c = E^-1 Z^T r`, three entries per aggregate; `r` already filtered. Each aggregate sums
