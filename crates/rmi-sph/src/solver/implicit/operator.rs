@@ -198,9 +198,10 @@ impl<'a> Op<'a> {
     /// Elasticity enters through the coarse strains `h_rJ` of [`coarse_strain`]: a unit
     /// translation of aggregate `J` gives solid `r` the displacement gradient
     /// `dt e_k (x) h_rJ`, and the elastic energy pairs the strains of two translations at
-    /// every solid, so the block is `sum_r (dt V_r0) [P_x, P_y, P_z](h_rJ) . h_rI` over the
-    /// solids `r` whose strain translation `i` moves (its solids and their rest neighbours);
-    /// for solids of `i` the terms of their own force and of their neighbours' cancel to that.
+    /// every solid, so the block is `sum_r (dt V_r0) P(h_rJ) h_rI` ([`coarse_stress_times`]
+    /// is `P(h) w`) over the solids `r` whose strain translation `i` moves (its solids and
+    /// their rest neighbours); for solids of `i` the terms of their own force and of their
+    /// neighbours' cancel to that.
     fn coarse_matrix_row(
         &self,
         i: usize,

@@ -220,7 +220,7 @@ impl<T: Copy + AddAssign> RowBuilder<T> {
 }
 
 /// A coarse matrix as assembled: the step it was assembled in (steps completed before it),
-/// each particle's aggregate ([`NONE`] outside; ids `0..rows.len()`) and the block rows of
+/// each particle's aggregate (`u32::MAX` outside; ids `0..rows.len()`) and the block rows of
 /// `E = Z^T A Z` (each column once per row). What a snapshot keeps of the coarse level.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct CoarseMatrix {
