@@ -1,4 +1,4 @@
-//! Two-level (deflation) preconditioner of the implicit CG.
+//! Two-level (additive coarse-grid) preconditioner of the implicit CG.
 //!
 //! Under block Jacobi the stiff skeleton leaves the CG about ten iterations per decade of
 //! residual: the smooth modes, in which neighbouring particles (skeleton and the pore water
@@ -16,9 +16,10 @@
 //! `z = y + Z E^-1 Z^T r`.
 //!
 //! It is symmetric and positive definite for any symmetric positive definite `E`, so it needs
-//! neither a special starting guess nor `A Z` itself: `E` is assembled once per step straight
-//! from the operator's terms, and an iteration adds a sum over each aggregate's members and
-//! one envelope solve ([`Skyline`]). The deflation variants (A-DEF2), which keep the residual
+//! neither a special starting guess nor `A Z` itself: `E` is assembled straight from the
+//! operator's terms, and since an older `E` keeps the preconditioner valid, one serves
+//! several steps ([`CoarseMatrix`]). An iteration adds a sum over each aggregate's members
+//! and one envelope solve ([`Skyline`]). The deflation variants (A-DEF2), which keep the residual
 //! orthogonal to the coarse space, save a few per cent of the iterations here but need the
 //! rows of `A Z` every step and a product with them every iteration, which cost more than
 //! those iterations (docs/benchmark-history.md).
@@ -233,8 +234,9 @@ pub struct CoarseMatrix {
 }
 
 impl CoarseMatrix {
-    /// Whether its aggregate ids and columns are in range for `n` particles and every block
-    /// is finite; the problem in words otherwise.
+    /// Whether its aggregate ids and columns are in range for `n` particles, each column once
+    /// per row, and every block finite; the problem in words otherwise (a snapshot's matrix is
+    /// checked before it is factored).
     pub fn check(&self, n: usize) -> Result<(), String> {
         let m = self.rows.len();
         if self.of.len() != n {
@@ -246,6 +248,11 @@ impl CoarseMatrix {
         for row in &self.rows {
             if row.iter().any(|(j, b)| *j as usize >= m || !b.iter().all(|x| x.is_finite())) {
                 return Err(format!("a block is non-finite or its column outside 0..{m}"));
+            }
+            let mut cols: Vec<u32> = row.iter().map(|e| e.0).collect();
+            cols.sort_unstable();
+            if cols.windows(2).any(|w| w[0] == w[1]) {
+                return Err("a row holds a column twice".into());
             }
         }
         Ok(())
@@ -366,6 +373,32 @@ mod tests {
         assert_eq!(agg.members(1), &[5, 6]);
         assert_eq!(agg.members(2), &[7, 8, 9]);
         assert_eq!(agg.of[4], NONE);
+    }
+
+    #[test]
+    fn coarse_matrix_check_names_what_is_wrong() {
+        let good = CoarseMatrix {
+            step: 3,
+            of: vec![0, NONE, 1],
+            rows: vec![
+                vec![(0, Matrix3::identity()), (1, -Matrix3::identity())],
+                vec![(1, Matrix3::identity()), (0, -Matrix3::identity())],
+            ],
+        };
+        assert_eq!(good.check(3), Ok(()));
+        assert!(good.check(4).unwrap_err().contains("expected 4"));
+        let mut bad = good.clone();
+        bad.of[1] = 2;
+        assert!(bad.check(3).unwrap_err().contains("aggregate"));
+        let mut bad = good.clone();
+        bad.rows[1].push((0, Matrix3::identity()));
+        assert!(bad.check(3).unwrap_err().contains("twice"));
+        let mut bad = good.clone();
+        bad.rows[0][1].1[(2, 2)] = f64::NAN;
+        assert!(bad.check(3).unwrap_err().contains("non-finite"));
+        let mut bad = good;
+        bad.rows[0][0].0 = 5;
+        assert!(bad.check(3).unwrap_err().contains("outside"));
     }
 
     #[test]
