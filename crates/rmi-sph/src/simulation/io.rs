@@ -303,7 +303,7 @@ impl Simulation {
             contact_load: self.contact_load.clone(),
             bodies: self.bnd.bodies.iter().map(|b| b.state.clone()).collect(),
             boundary_velocities: self.bnd.v.clone(),
-            coarse: self.op_buffers.coarse.as_ref().map(|tl| tl.matrix().clone()),
+            coarse: self.op_buffers.coarse.as_ref().map(|tl| tl.matrix()),
         }
     }
 
@@ -344,7 +344,7 @@ impl Simulation {
         fresh.response_prev = s.response_prev;
         fresh.vstar_prev = s.vstar_prev;
         fresh.contact_load = s.contact_load;
-        fresh.op_buffers.coarse = s.coarse.map(|m| std::sync::Arc::new(pool.install(|| TwoLevel::new(m))));
+        fresh.op_buffers.coarse = s.coarse.map(|m| std::sync::Arc::new(pool.install(|| TwoLevel::from_matrix(m))));
         fresh.kappa = vec![0.0; n];
         fresh.acc = vec![Vector3::zeros(); n];
         for (b, st) in fresh.bnd.bodies.iter_mut().zip(s.bodies) {

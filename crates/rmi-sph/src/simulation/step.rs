@@ -129,7 +129,7 @@ impl Simulation {
         apply(&mut self.response_prev, &perm);
         apply(&mut self.vstar_prev, &perm);
         if let Some(tl) = &mut self.op_buffers.coarse {
-            *tl = std::sync::Arc::new(tl.permuted(&perm));
+            std::sync::Arc::make_mut(tl).permute(&perm);
         }
         // Fields of the last step, so that accessors stay aligned with the particles.
         for f in [

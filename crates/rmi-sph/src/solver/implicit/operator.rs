@@ -9,7 +9,7 @@ use crate::neighbourhood::lists::{Nb, CHUNK};
 use crate::solver::ctx::Ctx;
 use crate::solver::density::DensityFields;
 use crate::solver::elasticity::ElasticFields;
-use crate::solver::linalg::coarse::{coarse_rows, Aggregates, BlockRows, CoarseMatrix, RowBuilder, TwoLevel, NONE};
+use crate::solver::linalg::coarse::{coarse_rows, Aggregates, BlockRows, RowBuilder, TwoLevel, NONE};
 use crate::solver::linalg::System;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
@@ -176,7 +176,7 @@ impl<'a> Op<'a> {
             return None;
         }
         let rows = self.coarse_matrix(&agg);
-        Some(TwoLevel::new(CoarseMatrix { step: self.s.step, of: agg.of, rows }))
+        Some(TwoLevel::new(agg, rows, self.s.step))
     }
 
     /// The block rows of `E = Z^T A Z` over the aggregates `agg`, assembled from the

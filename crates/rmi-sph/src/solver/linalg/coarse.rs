@@ -259,20 +259,21 @@ impl CoarseMatrix {
     }
 }
 
-/// The coarse level: the aggregates and the factor of `E = Z^T A Z`, with the matrix it was
-/// factored from.
+/// The coarse level: the aggregates and the factor of `E = Z^T A Z`, with the block rows it
+/// was factored from and the step they were assembled in (what [`TwoLevel::matrix`] saves).
 #[derive(Clone, Debug, Default)]
 pub struct TwoLevel {
     agg: Aggregates,
     factor: Skyline,
-    matrix: CoarseMatrix,
+    rows: Vec<Vec<(u32, Matrix3<f64>)>>,
+    step: u64,
 }
 
 impl TwoLevel {
-    /// Factors `E` from its block rows, symmetrised first: `A` is symmetric, `E` as assembled
-    /// only up to round-off. `matrix` must pass [`CoarseMatrix::check`].
-    pub fn new(matrix: CoarseMatrix) -> TwoLevel {
-        let rows = &matrix.rows;
+    /// Factors `E` from its block rows over the aggregates `agg` (each column once per row),
+    /// symmetrised first: `A` is symmetric, `E` as assembled only up to round-off. `step`:
+    /// steps completed when the rows were assembled.
+    pub fn new(agg: Aggregates, rows: Vec<Vec<(u32, Matrix3<f64>)>>, step: u64) -> TwoLevel {
         let sym: Vec<Vec<(u32, Matrix3<f64>)>> = rows
             .iter()
             .enumerate()
@@ -286,18 +287,23 @@ impl TwoLevel {
             })
             .collect();
         let factor = Skyline::factor(&sym);
-        let agg = Aggregates::from_ids(matrix.of.clone(), rows.len());
-        TwoLevel { agg, factor, matrix }
+        TwoLevel { agg, factor, rows, step }
     }
 
-    /// The matrix it was factored from.
-    pub fn matrix(&self) -> &CoarseMatrix {
-        &self.matrix
+    /// The coarse level of a saved matrix, which must pass [`CoarseMatrix::check`].
+    pub fn from_matrix(m: CoarseMatrix) -> TwoLevel {
+        let agg = Aggregates::from_ids(m.of, m.rows.len());
+        TwoLevel::new(agg, m.rows, m.step)
+    }
+
+    /// The matrix it was factored from, with its aggregates and step (for a snapshot).
+    pub fn matrix(&self) -> CoarseMatrix {
+        CoarseMatrix { step: self.step, of: self.agg.of.clone(), rows: self.rows.clone() }
     }
 
     /// Steps completed when its matrix was assembled.
     pub fn step(&self) -> u64 {
-        self.matrix.step
+        self.step
     }
 
     /// The aggregates.
@@ -305,25 +311,24 @@ impl TwoLevel {
         &self.agg
     }
 
-    /// The same coarse level after the particles were permuted (`perm[new] = old` over the
-    /// first `perm.len()` particles): members move with their particles; `E` is unchanged.
-    pub fn permuted(&self, perm: &[usize]) -> TwoLevel {
-        let mut of = self.matrix.of.clone();
+    /// Follows a permutation of the particles (`perm[new] = old` over the first `perm.len()`
+    /// particles): members move with their particles; `E` is unchanged.
+    pub fn permute(&mut self, perm: &[usize]) {
+        let mut of = self.agg.of.clone();
         for (new, &old) in perm.iter().enumerate() {
-            of[new] = self.matrix.of[old];
+            of[new] = self.agg.of[old];
         }
-        let agg = Aggregates::from_ids(of.clone(), self.matrix.rows.len());
-        TwoLevel { agg, factor: self.factor.clone(), matrix: CoarseMatrix { of, ..self.matrix.clone() } }
+        self.agg = Aggregates::from_ids(of, self.rows.len());
     }
 
     /// `c = E^-1 Z^T r`, three entries per aggregate; `r` already filtered. Each aggregate sums
     /// its members in order, so the result does not depend on the thread count.
     pub fn coarse_correction(&self, r: &[Vector3<f64>]) -> Vec<f64> {
-        let sums: Vec<Vector3<f64>> = (0..self.agg.len())
-            .into_par_iter()
-            .map(|i| self.agg.members(i).iter().fold(Vector3::zeros(), |acc, &a| acc + r[a as usize]))
-            .collect();
-        let mut g: Vec<f64> = sums.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
+        let mut g = vec![0.0; 3 * self.agg.len()];
+        g.par_chunks_mut(3).enumerate().for_each(|(i, gi)| {
+            let sum = self.agg.members(i).iter().fold(Vector3::zeros(), |acc, &a| acc + r[a as usize]);
+            gi.copy_from_slice(sum.as_slice());
+        });
         self.factor.solve(&mut g);
         g
     }
