@@ -67,8 +67,8 @@ pub(crate) trait System: Sync {
 /// level ([`crate::solver::linalg::coarse`]), the additive coarse correction
 /// `z = y + Z E^-1 Z^T r`. Each iteration is three parallel passes besides the stress pass
 /// (A p with the filter and p . Ap; the r update with y, r . r and r . y; x and the new
-/// direction), and the coarse pass with r . z. The sums have the chunking of `rmi_par::sum`, so the iterates do not
-/// depend on how the passes are fused.
+/// direction), and the coarse pass with r . z. The sums have the chunking of `rmi_par::sum`,
+/// so the iterates do not depend on how the passes are fused.
 pub(crate) fn pcg<S: System>(
     op: &S,
     x: &mut [Vector3<f64>],

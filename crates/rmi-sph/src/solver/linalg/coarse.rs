@@ -19,10 +19,10 @@
 //! neither a special starting guess nor `A Z` itself: `E` is assembled straight from the
 //! operator's terms, and since an older `E` keeps the preconditioner valid, one serves
 //! several steps ([`CoarseMatrix`]). An iteration adds a sum over each aggregate's members
-//! and one envelope solve ([`Skyline`]). The deflation variants (A-DEF2), which keep the residual
-//! orthogonal to the coarse space, save a few per cent of the iterations here but need the
-//! rows of `A Z` every step and a product with them every iteration, which cost more than
-//! those iterations (docs/benchmark-history.md).
+//! and one envelope solve ([`Skyline`]). The deflation variants (A-DEF2), which keep the
+//! residual orthogonal to the coarse space, save a few per cent of the iterations here but
+//! need the rows of `A Z` every step and a product with them every iteration, which cost
+//! more than those iterations (docs/benchmark-history.md).
 
 use crate::solver::linalg::skyline::Skyline;
 use nalgebra::{Matrix3, Vector3};
@@ -204,7 +204,7 @@ impl<T: Copy + AddAssign> RowBuilder<T> {
     }
 
     /// Empties the row, keeping its buffers.
-    pub(crate) fn clear(&mut self) {
+    fn clear(&mut self) {
         for &c in &self.cols {
             self.slot[c as usize] = NONE;
         }
