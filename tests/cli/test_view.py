@@ -1,12 +1,16 @@
-"""``rmi view``: a rerun recording of simulated trials, and the one line that says how to
-install rerun-sdk when it is missing."""
+"""``rmi view``: a rerun recording of simulated trials, the one line that says how to
+install rerun-sdk when it is missing, and the folders of the recording (made when missing,
+removed again when the write fails; checked with a stand-in for rerun-sdk)."""
 
 from __future__ import annotations
 
+import errno
 import itertools
 import json
 import sys
+import types
 from pathlib import Path
+from unittest import mock
 
 import pytest
 
@@ -80,3 +84,73 @@ def test_the_recording_holds_particles_bodies_and_series_on_one_timeline(
         assert rows[f"{root}/particles/skeleton"] == frames
         assert rows[f"{root}/bodies"] == frames
         assert rows[f"{root}/phase"] == changes
+
+
+class FakeStream:
+    """The part of rerun's RecordingStream that ``rmi view`` uses: its file sink writes at
+    once; ``fail`` makes the flush fail as a full disk would."""
+
+    fail = False
+
+    def __init__(self, name: str) -> None:
+        self.path: Path | None = None
+
+    def save(self, path: Path) -> None:
+        self.path = Path(path)
+        self.path.write_bytes(b"a recording")
+
+    def log(self, *args: object, **kwargs: object) -> None:
+        pass
+
+    send_columns = set_time = log
+
+    def flush(self) -> None:
+        if self.fail:
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    def disconnect(self) -> None:
+        pass
+
+
+@pytest.fixture
+def fake_rerun(monkeypatch: pytest.MonkeyPatch) -> type[FakeStream]:
+    """A stand-in for rerun-sdk, so that where the recording goes is tested without it."""
+    module = types.ModuleType("rerun")
+    for name in ("ViewCoordinates", "TimeColumn", "Scalars", "TextLog", "Points3D", "Mesh3D"):
+        setattr(module, name, mock.MagicMock())
+    stream = type("Stream", (FakeStream,), {})
+    module.RecordingStream = stream  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "rerun", module)
+    return stream
+
+
+def test_the_folders_of_the_recording_are_made(
+    tmp_path: Path, run_dir: Path, fake_rerun: type[FakeStream]
+) -> None:
+    rrd = tmp_path / "missing" / "folder" / "one.rrd"
+    assert main(["view", "--rrd", str(rrd), str(run_dir)]) == 0
+    assert rrd.read_bytes() == b"a recording"
+    assert [p.name for p in rrd.parent.iterdir()] == ["one.rrd"]
+
+
+def test_a_recording_that_cannot_be_written_leaves_nothing(
+    tmp_path: Path,
+    run_dir: Path,
+    fake_rerun: type[FakeStream],
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    fake_rerun.fail = True
+    rrd = tmp_path / "missing" / "one.rrd"
+    assert main(["view", "--rrd", str(rrd), str(run_dir)]) == 2
+    assert "No space left on device" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_recording_in_a_missing_folder_is_written(
+    tmp_path: Path, run_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    pytest.importorskip("rerun")
+    rrd = tmp_path / "missing" / "one.rrd"
+    assert main(["view", "--rrd", str(rrd), str(run_dir)]) == 0
+    assert f"wrote {rrd}: 1 run(s)" in capsys.readouterr().out
+    assert [p.name for p in rrd.parent.iterdir()] == ["one.rrd"]

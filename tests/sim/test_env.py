@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
+import rmi_sph
 from rmi_learn.data.schema import FORCE_LIMIT_N, OBS
 from rmi_learn.sim.env import DEFAULT_MAX_EPISODE_STEPS, ENV_ID, SpongeSqueezeEnv
 from rmi_learn.sim.goal import RELEASE_FRACTION
@@ -264,3 +265,122 @@ def test_actions_of_the_wrong_size_are_refused(
     # In range or not, a well-formed action is clipped to the action space and taken.
     env.step(np.full(n, 1e6, np.float32))
     assert sim.time > t0 and sim.action is not None and sim.action[0] == FORCE_LIMIT_N
+
+
+def test_vector_copies_stay_different_after_an_autoreset(cfg: dict[str, Any]) -> None:
+    envs = gym.make_vec(
+        ENV_ID, num_envs=2, vectorization_mode="sync", config=cfg, goal=0.5, max_episode_steps=2
+    )
+    envs.reset(seed=0)  # seeds 0 and 1
+    a = np.full((2, 1), 200.0, np.float32)
+    first = envs.step(a)[1]
+    assert envs.step(a)[3].all()  # the second step truncates both copies
+    assert envs.step(a)[1].tolist() == [0.0, 0.0]  # the autoreset step
+    second = envs.step(a)[1]
+    envs.close()
+    assert first[0] != first[1]
+    # The unseeded resets continue each copy's random stream: new episodes, still distinct.
+    assert second[0] != second[1]
+    assert second[0] != first[0] and second[1] != first[1]
+
+
+def test_a_seeded_reset_is_reproducible_and_unseeded_resets_differ(cfg: dict[str, Any]) -> None:
+    a = np.array([200.0], np.float32)
+
+    def episode(env: SpongeSqueezeEnv, seed: int | None) -> tuple[float, float, int]:
+        _, info = env.reset(seed=seed)
+        assert env.sim is not None
+        return info["M_L"], env.step(a)[1], int(env.sim.config["seed"])
+
+    env = SpongeSqueezeEnv(cfg, goal=0.5)
+    seeded = episode(env, 5)
+    assert seeded[2] == 5  # a seeded reset's trial has that seed, as before
+    drawn = [episode(env, None) for _ in range(2)]
+    assert drawn[0][2] != drawn[1][2] and drawn[0][:2] != drawn[1][:2]
+    assert 5 not in (drawn[0][2], drawn[1][2])
+    assert episode(env, 5) == seeded  # bit for bit
+    # The stream a seed starts is itself reproducible.
+    other = SpongeSqueezeEnv(cfg, goal=0.5, cache_handover=False)
+    assert episode(other, 5) == seeded
+    assert episode(other, None) == drawn[0]
+
+
+def test_a_state_of_another_config_is_refused(cfg: dict[str, Any], tmp_path: Any) -> None:
+    env = SpongeSqueezeEnv(cfg, goal=0.5)
+    env.reset(seed=0)
+    sim, period = env.sim, env.control_period
+    foreign = rmi_sph.Trial(tiny_config(dt=1e-3), num_threads=1)
+    path = tmp_path / "foreign.state"
+    foreign.save(path)
+    with pytest.raises(ValueError, match=r'options\["state"\] .*`dt` differs') as exc:
+        env.reset(options={"state": foreign.get_state()})
+    assert "\n" not in str(exc.value)
+    with pytest.raises(ValueError, match=r'options\["state_path"\] .*`dt` differs'):
+        env.reset(options={"state_path": str(path)})
+    assert env.sim is sim and env.control_period == period  # the episode goes on untouched
+    # A state of the same config with another seed is one of this environment's episodes.
+    same = rmi_sph.Trial(dict(cfg, seed=7), num_threads=1)
+    _, info = env.reset(options={"state": same.get_state()})
+    assert env.sim is not sim and info["phase"] == same.phase
+
+
+@pytest.mark.parametrize(
+    ("options", "error", "names"),
+    [({"goal": True}, TypeError, ("goal", ">= 0 kg")),
+     ({"goal": np.bool_(False)}, TypeError, ("goal", ">= 0 kg")),
+     ({"goal": "0.5"}, TypeError, ("goal", ">= 0 kg")),
+     ({"goal": 10**400}, ValueError, ("goal", ">= 0 kg")),
+     ({"goal": -1.0}, ValueError, ("goal", ">= 0 kg")),
+     ({"goal_fraction": None}, TypeError, ("goal_fraction", "[0, 1]")),
+     ({"goal_kg": 0.3}, ValueError, ("'goal_kg'", "goal, goal_fraction, state, state_path")),
+     ({"state": 3}, TypeError, ('options["state"]', "bytes")),
+     ({"state_path": 3}, TypeError, ('options["state_path"]', "path")),
+     ([("goal", 0.3)], TypeError, ("options", "dict"))],
+)  # fmt: skip
+def test_loose_reset_options_are_refused(
+    cfg: dict[str, Any], options: Any, error: type[Exception], names: tuple[str, ...]
+) -> None:
+    env = SpongeSqueezeEnv(cfg, goal=0.5)
+    with pytest.raises(error) as exc:
+        env.reset(options=options)
+    message = str(exc.value)
+    assert type(exc.value) is error and "\n" not in message
+    for name in names:
+        assert name in message
+
+
+def test_complex_actions_are_refused(cfg: dict[str, Any]) -> None:
+    env = SpongeSqueezeEnv(cfg, goal=0.5, action_mode="force_velocity")
+    env.reset(seed=0)
+    assert env.sim is not None
+    t0 = env.sim.time
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no imaginary part may be dropped with a warning
+        for bad in (np.array([80.0 + 1j, 0.0]), [80.0, 0j], np.array([80, None], dtype=object)):
+            with pytest.raises(TypeError, match=r"action must be 2 finite values .*real"):
+                env.step(bad)  # type: ignore[arg-type]
+        with pytest.raises(ValueError, match="2 finite values.*shape \\(2, 2\\)") as exc:
+            env.step(np.zeros((2, 2), np.float32))
+        assert "\n" not in str(exc.value)
+        with pytest.raises(ValueError, match="2 finite values"):
+            env.step([10**400, 0.0])  # type: ignore[arg-type]
+    assert env.sim.time == t0
+
+
+def test_goal_of_the_constructor_must_be_a_number(cfg: dict[str, Any]) -> None:
+    with pytest.raises(TypeError, match="goal must be"):
+        SpongeSqueezeEnv(cfg, goal=True)
+    with pytest.raises(TypeError, match="release_fraction must be in"):
+        SpongeSqueezeEnv(cfg, release_fraction="0.5")  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("control_dt", [1e-9, 3e-3, 0.0201, 0.0, float("nan"), True])
+def test_control_dt_must_be_whole_engine_steps(cfg: dict[str, Any], control_dt: Any) -> None:
+    with pytest.raises((ValueError, TypeError), match=r"control_dt must be .*dt = 0\.002 s"):
+        SpongeSqueezeEnv(cfg, control_dt=control_dt)
+
+
+def test_control_dt_of_whole_engine_steps_is_taken(cfg: dict[str, Any]) -> None:
+    env = SpongeSqueezeEnv(cfg, control_dt=3 * cfg["dt"])
+    assert env.substeps == 3 and env.control_period == 3 * cfg["dt"]
+    assert SpongeSqueezeEnv(cfg, control_dt=0.02 + 1e-12).substeps == 10

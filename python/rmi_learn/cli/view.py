@@ -26,7 +26,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="`rmi simulate` output directories (their VTK frames give the 3D view)",
     )
     parser.add_argument(
-        "--rrd", required=True, type=Path, metavar="FILE", help="the rerun recording to write"
+        "--rrd",
+        required=True,
+        type=Path,
+        metavar="FILE",
+        help="the rerun recording to write (missing folders are made)",
     )
     parser.add_argument(
         "--every", type=count(1), default=1, metavar="K", help="include every K-th VTK frame"
@@ -34,7 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Write the recording; 0 on success, 1 without rerun-sdk, 2 for a missing run."""
+    """Write the recording; 0 on success, 1 without rerun-sdk, 2 for a missing run or a
+    recording that cannot be written (nothing is left of it then)."""
     from rmi_learn.sim.rerun_view import write_recording
 
     summary = write_recording(args.runs, args.rrd, every=args.every)

@@ -18,7 +18,12 @@ Actions (``action_mode``):
 With ``normalize_actions=True`` every channel is in [-1, 1] and maps affinely onto its
 physical range (-1 the lower bound, 1 the upper). Out-of-range values are clipped to the
 action space (as gymnasium's ``ClipAction`` would); an action of the wrong shape or with a
-NaN or inf raises ``ValueError``.
+NaN or inf raises ``ValueError``, one of values that are not real numbers (complex, text,
+None) ``TypeError``.
+
+Seeds: ``reset(seed=s)`` gives the episode of trial seed ``s``, the same every time; an
+unseeded reset draws the trial's seed from the environment's ``np_random``, so episodes
+differ from one reset to the next (see ``SpongeSqueezeEnv.reset``).
 
 Observation: the 23 values of y_t in ``schema.OBS`` order as float32, with the pad loads
 averaged over the control step. ``v_res`` is undefined without contact (NaN in the engine
@@ -56,6 +61,8 @@ Registered as ``rmi/SpongeSqueeze-v0`` on import of this module::
 from __future__ import annotations
 
 import math
+import numbers
+import os
 from collections.abc import Mapping
 from typing import Any
 
@@ -71,7 +78,9 @@ from rmi_learn.sim.goal import (
     RELEASE_FRACTION,
     goal_mass,
     reachable_goal,
+    real_number,
     reference_release,
+    shown,
     unit_fraction,
 )
 from rmi_learn.sim.render import View, side_view, view_of
@@ -86,6 +95,10 @@ ACTION_MODES: dict[str, tuple[str, ...]] = {
 }
 #: Default size (height, width) of a rendered frame (px).
 RENDER_SHAPE = (240, 320)
+#: The keys ``reset`` accepts in ``options``.
+RESET_OPTIONS = ("goal", "goal_fraction", "state", "state_path")
+#: How far (in engine steps) ``control_dt`` may be from a whole number of engine steps.
+CONTROL_DT_TOLERANCE_STEPS = 1e-6
 
 ObsType = npt.NDArray[np.float32]
 ActType = npt.NDArray[np.float32]
@@ -117,10 +130,13 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
     handover : str, default "lift"
         Phase from which the agent drives the gripper; earlier phases run scripted.
     control_dt : float, default ``schema.CONTROL_DT`` (0.02 s)
-        Duration of one control step (rounded to whole simulator steps).
+        Duration of one control step: a whole number (>= 1) of the config's ``dt``, within
+        ``CONTROL_DT_TOLERANCE_STEPS`` of a step.
     cache_handover : bool, default True
-        Keep the hand-over state per seed, so repeated resets with one seed skip the
-        scripted approach (the continuation is bit-identical either way).
+        Keep the hand-over state per seed given to ``reset`` (and of the config's seed, for
+        the default goal), so repeated resets with one seed skip the scripted approach (the
+        continuation is bit-identical either way). Seeds drawn by unseeded resets are not
+        kept: they hardly ever come again.
     render_mode : {None, "rgb_array"}, default None
         ``"rgb_array"``: ``render()`` returns the side view of the particles.
     render_shape : (int, int), default (240, 320)
@@ -161,8 +177,6 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
             raise ValueError(
                 f"action_mode must be one of {list(ACTION_MODES)}, got {action_mode!r}"
             )
-        if not (control_dt > 0 and math.isfinite(control_dt)):
-            raise ValueError("control_dt must be a positive time (s)")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.num_threads = num_threads
@@ -175,7 +189,7 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         self.cache_handover = cache_handover
         dt = float(self.config["dt"])
         #: Simulator steps per control step, and the resulting control period (s).
-        self.substeps = max(1, round(control_dt / dt))
+        self.substeps = substeps_per_control(control_dt, dt)
         self.control_period = self.substeps * dt
         # Frames are one control step apart; an instance attribute, as it follows control_dt.
         self.metadata = {**self.metadata, "render_fps": 1.0 / self.control_period}
@@ -209,7 +223,8 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
 
     # ----------------------------------------------------------------------------------
 
-    def _scripted_approach(self, seed: int) -> rmi_sph.Trial:
+    def _scripted_approach(self, seed: int, keep: bool) -> rmi_sph.Trial:
+        """The trial of ``seed`` at hand-over; ``keep``: cache its state (``cache_handover``)."""
         if self.cache_handover and seed in self._cache:
             return rmi_sph.Trial.from_state(self._cache[seed], num_threads=self.num_threads)
         cfg = dict(self.config, seed=seed)
@@ -219,13 +234,13 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         while sim.phase in before and sim.time <= limit:
             sim.step(1)
         sim.take_record()  # starts the first averaging interval at hand-over
-        if self.cache_handover:
+        if self.cache_handover and keep:
             self._cache[seed] = sim.get_state()
         return sim
 
     def _reference_release(self) -> float:
         if self.reference_release_kg is None:
-            sim = self._scripted_approach(int(self.config["seed"]))
+            sim = self._scripted_approach(int(self.config["seed"]), keep=True)
             self.reference_release_kg = reference_release(sim, REFERENCE_SQUEEZE_N, self.substeps)
         return self.reference_release_kg
 
@@ -254,49 +269,67 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
     def physical_action(self, action: Any) -> npt.NDArray[np.float64]:
         """The physical action (N, m/s) an ``action`` of the action space stands for: clipped
         to the space, then mapped from [-1, 1] when actions are normalised. Raises
-        ``ValueError`` for a wrong shape or a NaN or inf."""
-        a = np.asarray(action, dtype=np.float64)
-        # Shape first: clipping against the bounds would broadcast a single value into a
-        # full action.
-        k = len(self.action_names)
-        if a.shape != (k,) or not np.all(np.isfinite(a)):
-            names = ", ".join(self.action_names)
-            raise ValueError(f"action must be {k} finite values [{names}], got {action!r}")
+        ``ValueError`` for a wrong shape or a NaN or inf, ``TypeError`` for values that are
+        not real numbers (complex, text, None)."""
+        a = self._action_values(action)
         if self.normalize_actions:
             u = 0.5 * (np.clip(a, -1.0, 1.0) + 1.0)
             return self.action_low + u * (self.action_high - self.action_low)
         return np.clip(a, self.action_low, self.action_high)
+
+    def _action_values(self, action: Any) -> npt.NDArray[np.float64]:
+        """``action`` as its finite float64 values, checked (see ``physical_action``)."""
+        k = len(self.action_names)
+        expected = f"action must be {k} finite values [{', '.join(self.action_names)}]"
+        try:
+            raw = np.asarray(action)
+        except ValueError:  # nested lists of unequal lengths
+            raise ValueError(f"{expected}, got {shown(action)}") from None
+        # Shape first: clipping against the bounds would broadcast a single value into a
+        # full action.
+        if raw.shape != (k,):
+            raise ValueError(f"{expected}, got shape {raw.shape}")
+        kind = raw.dtype.kind
+        if not (kind in "biuf" or (kind == "O" and all(isinstance(x, numbers.Real) for x in raw))):
+            # Converting a complex value would drop its imaginary part with only a warning.
+            raise TypeError(f"{expected} of real numbers, got {shown(action)}")
+        try:
+            a = raw.astype(np.float64)
+        except OverflowError:  # an integer beyond the float range
+            raise ValueError(f"{expected}, got {shown(action)}") from None
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{expected}, got {shown(action)}")
+        return a
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[ObsType, dict[str, Any]]:
         """Start an episode (see the module docstring).
 
-        ``options``: ``state`` (bytes of ``Trial.get_state()``) or ``state_path`` (a
-        file of ``Trial.save``) to start from a saved state instead of the scripted
-        approach; ``goal`` (kg) or ``goal_fraction``. ``seed`` seeds the pore-water jitter
-        (default: the config's seed).
+        ``options`` (keys among ``RESET_OPTIONS``): ``state`` (bytes of
+        ``Trial.get_state()``) or ``state_path`` (a file of ``Trial.save``) to start from a
+        saved state of this environment's config (any seed) instead of the scripted
+        approach; ``goal`` (kg) or ``goal_fraction``. Another key, a value of the wrong
+        kind or out of range, and a state of another config raise ``ValueError`` or
+        ``TypeError`` and leave the running episode as it was.
+
+        ``seed`` seeds the environment's random stream ``np_random`` (as gymnasium's
+        ``Env.reset`` does) and is the seed of the episode's trial (its pore-water jitter),
+        so a seeded reset gives the same episode every time. Without a seed the trial's
+        seed is drawn from that stream: successive episodes differ, and copies of a vector
+        environment, seeded apart, stay apart after their autoresets. A stream never seeded
+        starts from fresh entropy, as in gymnasium.
         """
-        super().reset(seed=seed)
-        options = dict(options or {})
-        # Checked before any work, so a bad option leaves the current episode as it was.
-        goal = goal_mass(options["goal"]) if "goal" in options else None
-        frac = (
-            unit_fraction("goal_fraction", options["goal_fraction"])
-            if "goal_fraction" in options
-            else None
-        )
+        options = self._checked_options(options)
+        goal, frac = options.get("goal"), options.get("goal_fraction")
         if goal is None and frac is None:
             goal, frac = self.default_goal, self.goal_fraction
         use_default = goal is None and frac is None
         release = self._reference_release() if use_default else 0.0
-        if "state" in options:
-            self.sim = rmi_sph.Trial.from_state(options["state"], num_threads=self.num_threads)
-        elif "state_path" in options:
-            self.sim = rmi_sph.Trial.load(options["state_path"], num_threads=self.num_threads)
-        else:
-            self.sim = self._scripted_approach(int(self.config["seed"]) if seed is None else seed)
-        record = self.sim.take_record()
+        super().reset(seed=seed)
+        sim = self._starting_trial(seed, options)
+        record = sim.take_record()
+        self.sim = sim
         water = float(record["M_L"])
         if goal is not None:
             self.goal = goal
@@ -306,6 +339,68 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
             self.goal = reachable_goal(water, release, self.release_fraction)
         self._view = view_of(self.sim, self.render_shape) if self.render_mode else None
         return self._observe(record)
+
+    def _checked_options(self, options: Any) -> dict[str, Any]:
+        """The ``options`` of ``reset``, checked before anything changes: None or a dict of
+        ``RESET_OPTIONS`` keys, with the goals as floats."""
+        if options is None:
+            return {}
+        accepted = ", ".join(RESET_OPTIONS)
+        if not isinstance(options, Mapping):
+            raise TypeError(
+                f"options must be a dict with keys among {accepted} (or None), "
+                f"got {shown(options)} ({type(options).__name__})"
+            )
+        unknown = [shown(k) for k in options if k not in RESET_OPTIONS]
+        if unknown:
+            raise ValueError(f"options has unknown keys {', '.join(unknown)}; accepted: {accepted}")
+        checked = dict(options)
+        if "state" in options and not isinstance(options["state"], (bytes, bytearray)):
+            state = options["state"]
+            raise TypeError(
+                'options["state"] must be bytes of get_state(), '
+                f"got {shown(state)} ({type(state).__name__})"
+            )
+        if "state_path" in options and not isinstance(options["state_path"], (str, os.PathLike)):
+            path = options["state_path"]
+            raise TypeError(
+                'options["state_path"] must be the path (str or os.PathLike) of a state file, '
+                f"got {shown(path)} ({type(path).__name__})"
+            )
+        if "goal" in options:
+            checked["goal"] = goal_mass(options["goal"], 'options["goal"]')
+        if "goal_fraction" in options:
+            frac = options["goal_fraction"]
+            checked["goal_fraction"] = unit_fraction('options["goal_fraction"]', frac)
+        return checked
+
+    def _starting_trial(self, seed: int | None, options: Mapping[str, Any]) -> rmi_sph.Trial:
+        """The trial an episode starts from: a saved state of ``options`` (of this config),
+        else the scripted approach of ``seed`` or of a seed drawn from ``np_random``."""
+        if "state" in options:
+            sim = rmi_sph.Trial.from_state(options["state"], num_threads=self.num_threads)
+            return self._of_this_config('options["state"]', sim)
+        if "state_path" in options:
+            sim = rmi_sph.Trial.load(options["state_path"], num_threads=self.num_threads)
+            return self._of_this_config('options["state_path"]', sim)
+        if seed is None:
+            # Below 2^63: run files store seeds as Int64.
+            return self._scripted_approach(int(self.np_random.integers(2**63)), keep=False)
+        return self._scripted_approach(seed, keep=True)
+
+    def _of_this_config(self, name: str, sim: rmi_sph.Trial) -> rmi_sph.Trial:
+        """``sim`` if its config is this environment's, seed aside (every episode has its
+        own); a ``ValueError`` naming ``name`` and the first differing field otherwise, as
+        ``Trial.set_state`` compares: a state of another ``dt`` would change the control
+        step unseen."""
+        diff = config_difference({**self.config, "seed": 0}, {**sim.config, "seed": 0})
+        if diff is not None:
+            field, mine, theirs = diff
+            raise ValueError(
+                f"{name} is a state of another config (`{field}` differs: {shown(theirs)} in "
+                f"the state, {shown(mine)} in this environment's)"
+            )
+        return sim
 
     def step(self, action: ActType) -> tuple[ObsType, float, bool, bool, dict[str, Any]]:
         """Apply ``action`` (see the module docstring) for one control step."""
@@ -340,6 +435,44 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
 
     def close(self) -> None:
         self.sim = None
+
+
+def substeps_per_control(control_dt: Any, dt: float) -> int:
+    """Engine steps in a control step of ``control_dt`` (s) at the engine's ``dt`` (s): a
+    whole number >= 1, within ``CONTROL_DT_TOLERANCE_STEPS`` of ``control_dt / dt``; a
+    ``ValueError`` (``TypeError`` for a value that is not a real number) naming
+    ``control_dt`` and the accepted values otherwise."""
+    accepted = (
+        f"a whole number (>= 1) of the config's dt = {dt} s "
+        f"(within {CONTROL_DT_TOLERANCE_STEPS:g} of a step)"
+    )
+    steps = real_number("control_dt", control_dt, accepted) / dt
+    n = round(steps) if math.isfinite(steps) else 0
+    if n < 1 or abs(steps - n) > CONTROL_DT_TOLERANCE_STEPS:
+        raise ValueError(f"control_dt must be {accepted}, got {control_dt!r} s")
+    return n
+
+
+def config_difference(mine: Any, theirs: Any, path: str = "") -> tuple[str, Any, Any] | None:
+    """The first field in which two configs (dicts as ``Trial.config`` gives them) differ:
+    its dotted path and its two values (``"missing"`` where one has no such field), or
+    None when they are equal."""
+    if isinstance(mine, Mapping) and isinstance(theirs, Mapping):
+        for key in [*mine, *(k for k in theirs if k not in mine)]:
+            field = f"{path}.{key}" if path else str(key)
+            if key not in mine or key not in theirs:
+                return field, mine.get(key, "missing"), theirs.get(key, "missing")
+            found = config_difference(mine[key], theirs[key], field)
+            if found is not None:
+                return found
+        return None
+    if isinstance(mine, list) and isinstance(theirs, list) and len(mine) == len(theirs):
+        for i, (a, b) in enumerate(zip(mine, theirs, strict=True)):
+            found = config_difference(a, b, f"{path}[{i}]")
+            if found is not None:
+                return found
+        return None
+    return None if mine == theirs else (path or "config", mine, theirs)
 
 
 if ENV_ID not in gym.registry:

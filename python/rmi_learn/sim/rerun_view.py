@@ -19,16 +19,20 @@ imported when a recording is written; without it :func:`write_recording` raises
 
 from __future__ import annotations
 
+import contextlib
+import importlib.util
 import os
 import re
 import xml.etree.ElementTree as ET
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from rmi_learn.data.runs import read_run
 from rmi_learn.errors import InputError, StageFailure
+from rmi_learn.sim.vtk import read_vtp_arrays
 
 #: How to install the optional viewer library.
 RERUN_INSTALL = "pip install rerun-sdk"
@@ -73,8 +77,6 @@ _BOX_TRIANGLES = np.array(
 
 def rerun_available() -> bool:
     """Whether the optional ``rerun`` package (rerun-sdk) can be imported."""
-    import importlib.util
-
     return importlib.util.find_spec("rerun") is not None
 
 
@@ -121,6 +123,27 @@ def _labels(files: Sequence[Path]) -> list[str]:
     return out
 
 
+@contextlib.contextmanager
+def staged_output(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """A temporary file beside ``path`` to write ``path``'s contents into: the folders
+    leading to ``path`` are made first, and when the block completes the temporary replaces
+    ``path``. When the block fails, the temporary and the folders made here are removed
+    again (a file already at ``path`` stays as it was), so no partial file is left."""
+    out = Path(path)
+    made = [p for p in (out.parent, *out.parent.parents) if not p.exists()]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp")
+    try:
+        yield tmp
+        os.replace(tmp, out)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        for folder in made:  # innermost first
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        raise
+
+
 def write_recording(
     runs: Sequence[str | os.PathLike[str]],
     rrd: str | os.PathLike[str],
@@ -129,15 +152,13 @@ def write_recording(
 ) -> dict[str, Any]:
     """Write the runs ``runs`` (``rmi simulate`` output directories, or run files) into the
     rerun recording ``rrd`` (see the module docstring); every ``every``-th VTK frame is
-    included. The file is written under a temporary name and renamed when complete.
+    included. Missing folders of ``rrd`` are made; the file is written under a temporary
+    name and renamed when complete (:func:`staged_output`).
     Returns ``{"path", "runs", "frames", "records"}`` (frames and records summed over runs).
 
     Raises :class:`~rmi_learn.errors.InputError` for a path without a run file, and
     :class:`~rmi_learn.errors.StageFailure` without rerun-sdk (both before anything is
     written)."""
-    from rmi_learn.data.runs import read_run
-    from rmi_learn.sim.vtk import read_vtp_arrays
-
     if every < 1:
         raise InputError(f"every must be >= 1, got {every}")
     files = [run_file_of(r) for r in runs]
@@ -145,54 +166,56 @@ def write_recording(
         raise InputError("give at least one run directory")
     rr = _import_rerun()
     out = Path(rrd)
-    tmp = out.with_name(f".{out.name}.tmp")
-    rec = rr.RecordingStream("rmi_view")
-    rec.save(tmp)
     frames_total = records_total = 0
-    try:
-        rec.log("runs", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        for file, label in zip(files, _labels(files), strict=True):
-            df, meta = read_run(file)
-            root = f"runs/{label}"
-            radius = float(meta.get("config", {}).get("particle_radius", 0.005))
-            t = df["time"].to_numpy()
-            index = [rr.TimeColumn("time", duration=t)]
-            for channel, (entity, scale) in SERIES.items():
-                if channel in df.columns:
-                    values = df[channel].cast(float).to_numpy() * scale
-                    rec.send_columns(
-                        f"{root}/{entity}",
-                        indexes=index,
-                        columns=rr.Scalars.columns(scalars=values),
-                    )
-            phases = df["phase"].to_list()
-            for k, phase in enumerate(phases):
-                if k == 0 or phase != phases[k - 1]:
-                    rec.set_time("time", duration=float(t[k]))
-                    rec.log(f"{root}/phase", rr.TextLog(f"phase {phase}"))
-            records_total += df.height
-            parts: dict[int, list[tuple[float, Path]]] = {0: [], 1: []}
-            for time_s, part, path in frames_of(file.parent):
-                if part in parts:
-                    parts[part].append((time_s, path))
-            for part, frames in parts.items():
-                for time_s, path in frames[::every]:
-                    rec.set_time("time", duration=time_s)
-                    data = read_vtp_arrays(path)
-                    if part == 0:
-                        _log_particles(rr, rec, f"{root}/particles", data, radius)
-                        frames_total += 1
-                    else:
-                        _log_bodies(rr, rec, f"{root}/bodies", data)
-        rec.flush()
-    finally:
-        # Closing the file sink completes the file (or releases it after an error).
-        rec.disconnect()
-    try:
-        os.replace(tmp, out)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with staged_output(out) as tmp:
+        rec = rr.RecordingStream("rmi_view")
+        rec.save(tmp)
+        try:
+            rec.log("runs", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+            for file, label in zip(files, _labels(files), strict=True):
+                frames, records = _log_run(rr, rec, file, f"runs/{label}", every)
+                frames_total += frames
+                records_total += records
+            rec.flush()
+        finally:
+            # Closing the file sink completes the file (or releases it after an error).
+            rec.disconnect()
     return {"path": out, "runs": len(files), "frames": frames_total, "records": records_total}
+
+
+def _log_run(rr: Any, rec: Any, file: Path, root: str, every: int) -> tuple[int, int]:
+    """One run's series, phase changes and frames under ``root``; returns the particle
+    frames and the records logged."""
+    df, meta = read_run(file)
+    radius = float(meta.get("config", {}).get("particle_radius", 0.005))
+    t = df["time"].to_numpy()
+    index = [rr.TimeColumn("time", duration=t)]
+    for channel, (entity, scale) in SERIES.items():
+        if channel in df.columns:
+            values = df[channel].cast(float).to_numpy() * scale
+            rec.send_columns(
+                f"{root}/{entity}", indexes=index, columns=rr.Scalars.columns(scalars=values)
+            )
+    phases = df["phase"].to_list()
+    for k, phase in enumerate(phases):
+        if k == 0 or phase != phases[k - 1]:
+            rec.set_time("time", duration=float(t[k]))
+            rec.log(f"{root}/phase", rr.TextLog(f"phase {phase}"))
+    parts: dict[int, list[tuple[float, Path]]] = {0: [], 1: []}
+    for time_s, part, path in frames_of(file.parent):
+        if part in parts:
+            parts[part].append((time_s, path))
+    frames_total = 0
+    for part, frames in parts.items():
+        for time_s, path in frames[::every]:
+            rec.set_time("time", duration=time_s)
+            data = read_vtp_arrays(path)
+            if part == 0:
+                _log_particles(rr, rec, f"{root}/particles", data, radius)
+                frames_total += 1
+            else:
+                _log_bodies(rr, rec, f"{root}/bodies", data)
+    return frames_total, df.height
 
 
 def _log_particles(rr: Any, rec: Any, base: str, data: dict[str, Any], radius: float) -> None:
