@@ -66,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--json", action="store_true", help="print the result as JSON")
     a = ap.parse_args(argv)
-    from rmi_learn.data.sweep import PRESETS, _configs_of, expand_grid, load_grid, prefix_groups
+    from rmi_learn.data.sweep import PRESETS, configs_of, expand_grid, load_grid, prefix_groups
 
     try:
         index = Path(a.sample) / "index.parquet"
@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"the sample has no finished run of size {missing} cm")
         if any(w < 1 for w in a.workers):
             raise ValueError("--workers: expected integers >= 1")
-        groups = prefix_groups(specs, _configs_of(specs, None))
+        groups = prefix_groups(specs, configs_of(specs))
         sample_grid = Path(a.sample) / "grid.json"
         forces = None
         if sample_grid.is_file():

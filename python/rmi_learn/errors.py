@@ -11,6 +11,8 @@ import sys
 import unicodedata
 from types import TracebackType
 
+import rmi_sph
+
 
 class InputError(Exception):
     """The user's input is wrong (an option, a file, a directory of the wrong kind): the
@@ -21,6 +23,10 @@ class InputError(Exception):
 class StageFailure(Exception):
     """A stage ran on valid input but could not finish (another sweep holds the output
     directory, an optional backend is missing): ``rmi COMMAND: message`` and exit status 1."""
+
+
+class RunFileError(ValueError):
+    """A run file's columns, values or metadata break the run-file contract."""
 
 
 class input_errors(contextlib.ContextDecorator):
@@ -58,9 +64,6 @@ def is_input_error(exc: BaseException) -> bool:
     file, a config value out of range, or an :class:`InputError` a stage raised for what it
     caught) rather than that the code is. This is the one place that decides which errors
     end a command with status 2."""
-    import rmi_sph
-    from rmi_learn.data.runs import RunFileError
-
     paths = (FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError)
     inputs = (PermissionError, json.JSONDecodeError, RunFileError, rmi_sph.ConfigError, InputError)
     if isinstance(exc, OSError) and exc.errno in OUTPUT_ERRNOS:

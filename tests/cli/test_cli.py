@@ -162,7 +162,7 @@ def test_numeric_options_are_checked_when_parsed(
 
 
 def test_number_types() -> None:
-    from rmi_learn.cli.argtypes import count, positive, real
+    from rmi_learn.option_types import count, positive, real
 
     assert count(0)("0") == 0 and count(1)("7") == 7
     assert positive("1e-4") == 1e-4 and real(0.0, 1.0, high_open=True)("0") == 0.0

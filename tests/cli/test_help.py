@@ -313,7 +313,7 @@ def test_threads_means_the_same_on_every_command() -> None:
 def test_threads_default_is_the_engines(monkeypatch: pytest.MonkeyPatch) -> None:
     """Absent ``--threads`` means what the engine's default means: ``$RMI_NUM_THREADS``,
     else every available core; a bad variable is an input error naming it."""
-    from rmi_learn.cli.argtypes import available_cores, threads_of
+    from rmi_learn.cli.threads import available_cores, threads_of
     from rmi_learn.errors import InputError
 
     monkeypatch.delenv("RMI_NUM_THREADS", raising=False)

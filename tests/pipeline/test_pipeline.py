@@ -17,7 +17,8 @@ import pytest
 
 from rmi_learn import cli, pipeline
 from rmi_learn.pipeline import Call, PipelineError, load_preset, run_pipeline
-from rmi_learn.pipeline import stages as stages_mod
+from rmi_learn.pipeline import run as run_mod
+from rmi_learn.pipeline.calls import flag_words
 
 STAGE_ORDER = [
     "sweep",
@@ -103,12 +104,10 @@ def test_stage_options_are_checked_like_the_commands_arguments(tmp_path: Path) -
 
 
 def test_flags_follow_cli_spelling() -> None:
-    assert stages_mod._flags({"max_windows": 4, "debug": True, "resume": False, "x": None}) == [
-        "--max-windows",
-        "4",
-        "--debug",
-    ]
-    assert stages_mod._flags({"channels": (32, 64)}) == ["--channels", "32,64"]
+    assert flag_words("max_windows", 4) == ("--max-windows", "4")
+    assert flag_words("debug", True) == ("--debug",)
+    assert flag_words("resume", False) == flag_words("x", None) == ()
+    assert flag_words("channels", (32, 64)) == ("--channels", "32,64")
 
 
 def test_recorded_command_lines(tmp_path: Path) -> None:
@@ -159,7 +158,7 @@ def test_failed_stage_resumes_where_it_stopped(
 ) -> None:
     cfg = load_preset("tiny")
     rec = Recorder(fail_on="rank")
-    monkeypatch.setattr(stages_mod, "_execute", rec)
+    monkeypatch.setattr(run_mod, "execute_call", rec)
     with pytest.raises(PipelineError, match="stage rank failed"):
         run_pipeline(cfg, tmp_path, log=lambda s: None)
     done = sorted(p.stem for p in (tmp_path / "stages").glob("*.json"))
@@ -169,12 +168,12 @@ def test_failed_stage_resumes_where_it_stopped(
 
     # Second call: the finished stages are skipped, the failed one and the rest run.
     rec2 = Recorder()
-    monkeypatch.setattr(stages_mod, "_execute", rec2)
+    monkeypatch.setattr(run_mod, "execute_call", rec2)
     run_pipeline(cfg, tmp_path, log=lambda s: None)
     assert [c[0] for c in rec2.calls] == ["rank", "closed-loop", "control-bench", "report"]
     # Third call: nothing left to do.
     rec3 = Recorder()
-    monkeypatch.setattr(stages_mod, "_execute", rec3)
+    monkeypatch.setattr(run_mod, "execute_call", rec3)
     run_pipeline(cfg, tmp_path, log=lambda s: None)
     assert rec3.calls == []
     # --redo forgets a marker; --only restricts.
@@ -187,7 +186,7 @@ def test_interrupted_training_resumes(tmp_path: Path, monkeypatch: pytest.Monkey
     (tmp_path / "wm" / "ac-gru").mkdir(parents=True)
     (tmp_path / "wm" / "ac-gru" / "config.json").write_text("{}")
     rec = Recorder()
-    monkeypatch.setattr(stages_mod, "_execute", rec)
+    monkeypatch.setattr(run_mod, "execute_call", rec)
     run_pipeline(cfg, tmp_path, only=["world-models"], log=lambda s: None)
     by_out = {c[c.index("--out") + 1]: c for c in rec.calls}
     assert "--resume" in by_out[str(tmp_path / "wm" / "ac-gru")]
@@ -230,7 +229,7 @@ def test_training_calls_resume_through_the_library(
 
 
 def test_out_dir_is_tied_to_its_preset(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(stages_mod, "_execute", Recorder())
+    monkeypatch.setattr(run_mod, "execute_call", Recorder())
     run_pipeline(load_preset("tiny"), tmp_path, only=["sweep"], log=lambda s: None)
     assert json.loads((tmp_path / "pipeline.json").read_text()) == load_preset("tiny").raw
     with pytest.raises(ValueError, match="another pipeline preset"):
@@ -280,3 +279,119 @@ def test_a_stage_runs_through_its_library_call(
     assert err.startswith("rmi dataset: ") and len(err.strip().splitlines()) == 1
     assert cli.main(["pipeline", "--preset", "tiny", "--out", str(empty)]) == 1
     assert "run the same command again" in capsys.readouterr().err
+
+
+def test_every_stage_runs_its_library_call_with_the_arguments_it_records(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The calls that run, stage by stage, with every library function replaced by a
+    recorder: each gets what its recorded command line says."""
+    import torch
+
+    import rmi_learn.control as control
+    from rmi_learn.analysis import physical
+    from rmi_learn.analysis import report as reporting
+    from rmi_learn.data import dataset, sweep
+    from rmi_learn.policies import closed_loop, ranking
+    from rmi_learn.policies import training as policy_training
+    from rmi_learn.world_models import evaluation
+    from rmi_learn.world_models import training as wm_training
+
+    seen: list[tuple[str, tuple[Any, ...], dict[str, Any]]] = []
+
+    def recorder(name: str) -> Any:
+        return lambda *args, **kw: seen.append((name, args, kw))
+
+    for module, attr in (
+        (sweep, "sweep"),
+        (dataset, "build"),
+        (physical, "analyze"),
+        (wm_training, "train"),
+        (evaluation, "eval_wm"),
+        (policy_training, "train_policy"),
+        (ranking, "rank"),
+        (closed_loop, "run_closed_loop"),
+        (control, "run_control_bench"),
+        (reporting, "write_report"),
+    ):
+        monkeypatch.setattr(module, attr, recorder(attr))
+    monkeypatch.setattr(torch, "set_num_threads", lambda n: seen.append(("threads", (n,), {})))
+    (tmp_path / "policy" / "flow").mkdir(parents=True)
+    (tmp_path / "policy" / "flow" / "config.json").write_text("{}")
+    markers = run_pipeline(load_preset("tiny"), tmp_path, threads=3, log=lambda s: None)
+
+    calls = [c for c in seen if c[0] != "threads"]
+    assert [c[0] for c in calls] == (
+        ["sweep", "build", "analyze"]
+        + ["train"] * (len(pipeline.MAIN_MODELS) + len(pipeline.SCORER_MODELS))
+        + ["train"] * len(pipeline.ABLATION_MODELS)
+        + ["eval_wm", "train_policy", "train_policy", "rank", "run_closed_loop"]
+        + ["run_control_bench", "write_report"]
+    )
+    # torch's threads are set before each call that runs torch (training, eval, rank, bench).
+    assert {c[1] for c in seen if c[0] == "threads"} == {(3,)}
+    by_name = {c[0]: c for c in calls}
+    t = tmp_path
+    assert by_name["sweep"][1:] == (
+        (t / "sweep",),
+        {"preset": "tiny", "workers": 2, "threads_per_run": 1},
+    )
+    assert by_name["build"][1:] == ((t / "sweep" / "runs", t / "dataset"), {})
+    assert by_name["analyze"][1:] == ((t / "sweep", t / "analysis"), {})
+    _, runs, kw = by_name["eval_wm"]
+    assert runs[1:] == (t / "dataset", t / "tables" / "wm")
+    assert kw == {"latency": False, "max_windows": 64}
+    assert len(runs[0]) == 11 and all(isinstance(r, str) for r in runs[0])
+    policies = [c for c in calls if c[0] == "train_policy"]
+    assert [p[1] for p in policies] == [
+        ("diffusion", t / "dataset", t / "policy" / "diffusion"),
+        ("flow", t / "dataset", t / "policy" / "flow"),
+    ]
+    assert [p[2] for p in policies] == [
+        {"debug": True, "epochs": 1, "progress": False, "resume": resume}
+        for resume in (False, True)
+    ]
+    assert by_name["rank"][1:] == (
+        (t / "dataset", t / "wm" / "transformer", t / "tables" / "rank"),
+        {"diffusion": t / "policy" / "diffusion", "flow": t / "policy" / "flow", "max_windows": 4},
+    )
+    _, args, kw = by_name["run_closed_loop"]
+    assert args == (t / "sweep", t / "tables" / "rank", t / "closed_loop")
+    assert kw.pop("log") is not None and kw == {"max_windows": 1, "threads": 3}
+    _, args, kw = by_name["run_control_bench"]
+    assert args == () and kw.pop("log") is not None
+    assert kw == {
+        "runs": t / "sweep",
+        "data": t / "dataset",
+        "wm": t / "wm",
+        "policy": t / "policy",
+        "out": t / "control",
+        "states_per_size": 1,
+        "goals_per_state": 1,
+        "setpoints": 2,
+        "k": 2,
+        "receding": 16,
+        "threads": 3,
+        "progress": False,
+    }
+    assert by_name["write_report"][1:] == ((t,), {})
+    # The markers record the command lines of those calls.
+    assert markers["policies"]["commands"][1].endswith("--no-progress --resume")
+    assert markers["control"]["commands"] == [
+        f"rmi control-bench --runs {t / 'sweep'} --data {t / 'dataset'} --wm {t / 'wm'} "
+        f"--policy {t / 'policy'} --out {t / 'control'} --states-per-size 1 "
+        "--goals-per-state 1 --setpoints 2 --k 2 --receding 16 --threads 3 --no-progress"
+    ]
+
+
+def test_list_options_of_the_benchmark_are_text_on_the_command_line_and_lists_in_the_call(
+    tmp_path: Path,
+) -> None:
+    cfg = load_preset("control")
+    (bench,) = {s.name: s for s in pipeline.build_stages(cfg, tmp_path, threads=2)}[
+        "control"
+    ].calls()
+    assert bench.argv[bench.argv.index("--refine-scorers") + 1] == "arx-32,arx-32c"
+    passed = {a.param: a.value for a in bench.args if a.kind == "keyword"}
+    assert passed["refine_scorers"] == ["arx-32", "arx-32c"]
+    assert passed["receding_scorers"] == ["wt", "arx-32"]

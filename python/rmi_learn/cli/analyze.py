@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import count, seed
+from rmi_learn.option_types import count, seed
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

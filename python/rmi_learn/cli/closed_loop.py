@@ -14,7 +14,8 @@ import json
 import sys
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import add_threads, count, threads_of
+from rmi_learn.cli.threads import add_threads, threads_of
+from rmi_learn.option_types import count
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

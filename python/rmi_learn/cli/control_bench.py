@@ -17,7 +17,8 @@ import json
 import sys
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import add_threads, count, threads_of
+from rmi_learn.cli.threads import add_threads, threads_of
+from rmi_learn.option_types import count
 
 
 def _names(text: str) -> list[str]:

@@ -11,8 +11,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from rmi_learn.cli.argtypes import seed
 from rmi_learn.errors import InputError, input_errors
+from rmi_learn.option_types import seed
 
 
 def _build_args(p: argparse.ArgumentParser, sub: bool) -> None:

@@ -7,7 +7,8 @@ import argparse
 import json
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import add_threads, count, positive, seed, threads_of
+from rmi_learn.cli.threads import add_threads, threads_of
+from rmi_learn.option_types import count, positive, seed
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

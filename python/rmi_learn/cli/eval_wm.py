@@ -18,7 +18,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import add_threads, count, device, threads_of
+from rmi_learn.cli.threads import add_threads, threads_of
+from rmi_learn.option_types import count, device
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

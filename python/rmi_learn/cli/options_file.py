@@ -24,8 +24,8 @@ import sys
 from pathlib import Path
 from typing import Any, NoReturn
 
-from rmi_learn.cli.argtypes import counts
 from rmi_learn.errors import InputError
+from rmi_learn.option_types import counts
 
 #: Keys a file may not set: the file itself and the help.
 _EXCLUDED = frozenset({"config", "help"})

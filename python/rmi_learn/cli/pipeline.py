@@ -15,9 +15,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import add_threads, threads_of
+from rmi_learn.cli.threads import add_threads, threads_of
 from rmi_learn.errors import InputError
-from rmi_learn.pipeline.config import PRESETS
+from rmi_learn.pipeline import PRESETS, PipelineError, load_preset, run_pipeline
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -42,8 +42,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the pipeline; 0 when every stage finished, 1 when one failed, 2 on bad input."""
-    from rmi_learn.pipeline import PipelineError, load_preset, run_pipeline
-
     try:
         cfg = load_preset(preset=args.preset) if args.preset else load_preset(path=args.config)
     except (OSError, ValueError) as exc:

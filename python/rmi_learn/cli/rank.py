@@ -7,8 +7,9 @@ import argparse
 import json
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import add_threads, count, device, positive, seed, threads_of
+from rmi_learn.cli.threads import add_threads, threads_of
 from rmi_learn.data.schema import FORCE_LIMIT_N
+from rmi_learn.option_types import count, device, positive, seed
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -19,9 +19,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from rmi_learn.cli.argtypes import add_threads, count, seed, threads_of
+from rmi_learn.cli.threads import add_threads, threads_of
 from rmi_learn.data.schema import SPONGE_SIZES_CM
 from rmi_learn.errors import StageFailure
+from rmi_learn.option_types import count, seed
 
 #: Seconds between progress lines on a terminal (rewritten in place) and in a log file.
 PROGRESS_EVERY_S = {True: 1.0, False: 5.0}

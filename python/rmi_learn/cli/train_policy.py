@@ -11,19 +11,10 @@ import argparse
 import json
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import (
-    add_threads,
-    count,
-    counts,
-    device,
-    non_negative,
-    positive,
-    real,
-    seed,
-    threads_of,
-)
 from rmi_learn.cli.options_file import add_config_option
+from rmi_learn.cli.threads import add_threads, threads_of
 from rmi_learn.cli.train_wm import add_tensorboard_option
+from rmi_learn.option_types import count, counts, device, non_negative, positive, real, seed
 
 #: ``--config FILE`` holds this command's options (see :mod:`rmi_learn.cli.options_file`).
 OPTIONS_FILE = True

@@ -16,10 +16,11 @@ import argparse
 import json
 from typing import Any
 
-from rmi_learn.cli.argtypes import add_threads, count, device, positive, seed, threads_of
 from rmi_learn.cli.options_file import add_config_option
+from rmi_learn.cli.threads import add_threads, threads_of
 from rmi_learn.data.schema import SPONGE_SIZES_CM
 from rmi_learn.errors import InputError
+from rmi_learn.option_types import count, device, positive, seed
 from rmi_learn.world_models.training import (
     GROUP_CHOICES,
     HUBER_DELTA,

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from rmi_learn.cli.argtypes import count
+from rmi_learn.option_types import count
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -44,6 +44,7 @@ import polars as pl
 
 from rmi_learn import __version__
 from rmi_learn.data.schema import ACTIONS, EXTRAS, OBS
+from rmi_learn.errors import RunFileError
 
 #: Every column of a run file, in file order.
 RUN_COLUMNS: tuple[str, ...] = EXTRAS + OBS + ACTIONS
@@ -73,10 +74,6 @@ META_KEYS = {
     "version": "rmi.version",
     "git": "rmi.git",
 }
-
-
-class RunFileError(ValueError):
-    """A run file's columns, values or metadata break the run-file contract."""
 
 
 # --------------------------------------------------------------------------------------

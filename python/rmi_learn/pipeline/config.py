@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from rmi_learn.data.runs import read_json_source
+from rmi_learn.option_types import count, device, real, seed
 
 PRESETS: tuple[str, ...] = ("tiny", "quick", "study", "paper", "control")
 
@@ -27,26 +28,18 @@ def _checked(parse: Callable[[str], Any] | None = None, kind: type | tuple[type,
 
 
 def _count(low: int) -> Any:
-    from rmi_learn.cli.argtypes import count
-
     return _checked(count(low))
 
 
 def _seed() -> Any:
-    from rmi_learn.cli.argtypes import seed
-
     return _checked(seed)
 
 
 def _device() -> Any:
-    from rmi_learn.cli.argtypes import device
-
     return _checked(device, str)
 
 
 def _real(**limits: Any) -> Any:
-    from rmi_learn.cli.argtypes import real
-
     return _checked(real(**limits), (int, float))
 
 

@@ -13,7 +13,7 @@ from rmi_learn.data import schema
 from rmi_learn.data.runs import read_run, run_path
 from rmi_learn.data.sweep import (
     PRESETS,
-    _configs_of,
+    configs_of,
     expand_grid,
     load_grid,
     prefix_groups,
@@ -58,10 +58,10 @@ def test_runs_sharing_their_prefix_equal_the_runs_made_alone(tmp_path: Path) -> 
     # 10 N drops the porosity-0.7 sponge before the squeeze: both members end so.
     grid = {**load_grid("tiny"), "hold_forces_N": [10, 60], "squeeze_forces_N": [120, 200]}
     specs = expand_grid(grid)
-    assert len(prefix_groups(specs, _configs_of(specs, None))) == len(specs) // 2
+    assert len(prefix_groups(specs, configs_of(specs))) == len(specs) // 2
     shared, alone = tmp_path / "shared", tmp_path / "alone"
     a = run_sweep(specs, shared, workers=2, progress=False, grid=grid)
-    b = run_sweep(specs, alone, workers=0, runner="rmi_sph:run_trial", progress=False, grid=grid)
+    b = run_sweep(specs, alone, workers=0, runner=rmi_sph.run_trial, progress=False, grid=grid)
     assert a.ok == b.ok == len(specs)
     for spec in specs:
         fa, ma = read_run(run_path(shared / "runs", spec.params))

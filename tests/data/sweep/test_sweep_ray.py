@@ -19,7 +19,7 @@ from typing import Any
 import polars as pl
 import pytest
 from polars.testing import assert_frame_equal
-from test_sweep import fake_make_config, fake_runner, grid, logged
+from sweep_doubles import fake_make_config, fake_runner, grid, logged
 
 from rmi_learn.data.runs import iter_run_files, read_run
 from rmi_learn.data.sweep import INDEX_FILE, expand_grid, run_sweep, validate_grid

@@ -1,16 +1,17 @@
-"""Argument types for the ``rmi`` commands: numbers checked where they are parsed.
+"""Option types: the values of the ``rmi`` commands' options (and of the pipeline presets'
+options, which are those of the commands) checked where they are parsed.
 
 An out-of-range value then fails like any other bad argument, as argparse's usage error
 naming the option and the accepted range (exit status 2), before a command creates its
 output directory or starts work (``--epochs 0`` would otherwise write a finished run with
-no training, ``--batch-size 0`` fail deep inside the data loader).
+no training, ``--batch-size 0`` fail deep inside the data loader); a pipeline preset with
+such a value is refused when it is read.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
-import os
 from collections.abc import Callable
 
 from rmi_learn.data.schema import SEED_MAX
@@ -113,48 +114,3 @@ def counts(text: str) -> tuple[int, ...]:
 positive = real(0.0, low_open=True)
 #: A finite number >= 0 (weight decay, floors).
 non_negative = real(0.0)
-
-
-def available_cores() -> int:
-    """The CPU cores this process may run on (its affinity mask where the system has one,
-    else every core)."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):  # macOS and Windows have no affinity call
-        return os.cpu_count() or 1
-
-
-#: The environment variable the engine reads for its default thread count; the ``rmi``
-#: commands read it too, so that one setting covers the engine and torch.
-THREADS_ENV = "RMI_NUM_THREADS"
-
-
-def add_threads(parser: argparse.ArgumentParser, uses: str) -> None:
-    """The ``--threads N`` option every command shares: the CPU threads the command works
-    with in total, ``uses`` saying on what; absent means ``$RMI_NUM_THREADS``, else every
-    core available (:func:`threads_of`)."""
-    parser.add_argument(
-        "--threads",
-        type=count(1),
-        default=None,
-        metavar="N",
-        help=f"CPU threads for {uses} (default: ${THREADS_ENV}, else every core this process "
-        "may use)",
-    )
-
-
-def threads_of(value: int | None) -> int:
-    """The thread count a ``--threads`` value stands for: ``value``; when the option was not
-    given, ``$RMI_NUM_THREADS`` (the engine's own default) or else every core available.
-    Raises :class:`~rmi_learn.errors.InputError` for a set variable that is not a count."""
-    if value is not None:
-        return value
-    text = os.environ.get(THREADS_ENV, "").strip()
-    if not text:
-        return available_cores()
-    try:
-        return count(1)(text)
-    except argparse.ArgumentTypeError as exc:
-        from rmi_learn.errors import InputError
-
-        raise InputError(f"{THREADS_ENV}: {exc} (worker threads), or unset it") from None
