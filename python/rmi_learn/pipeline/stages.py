@@ -152,10 +152,10 @@ def _training_argv(
 def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
     """The stages of a preset, in order, with their calls (built lazily, because a training
     stage decides on resuming when it starts)."""
+    from rmi_learn import closed_loop
     from rmi_learn.analysis import physical
     from rmi_learn.analysis import report as reporting
     from rmi_learn.data import dataset, sweep
-    from rmi_learn.policies import closed_loop
 
     # A grid preset's name (the sweep's presets, e.g. `paper-fine`), else a grid file.
     grid = cfg.grid
@@ -229,7 +229,7 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
         return [policy_call(obj) for obj in OBJECTIVES]
 
     def rank() -> list[Call]:
-        from rmi_learn.policies import ranking
+        from rmi_learn.planning import ranking
 
         opts = cfg.rank.given()
         wm, tables = out / "wm" / "transformer", out / "tables" / "rank"
@@ -272,7 +272,7 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
         return [Call(argv, run)]
 
     def control() -> list[Call]:
-        from rmi_learn.control import run_control_bench
+        from rmi_learn.control_bench import run_control_bench
 
         opts = cfg.control.given() if cfg.control is not None else {}
         dirs = {"runs": sweep_dir, "data": data, "wm": out / "wm", "policy": out / "policy"}
