@@ -89,10 +89,13 @@ def main() -> None:
 
     import torch
 
+    from rmi_learn.planning.planner import Planner
+    from rmi_learn.planning.realtime import RealtimePlanner
+    from rmi_learn.planning.scorers import world_model_scorer
+    from rmi_learn.planning.standardiser import Standardiser
     from rmi_learn.policies.diffusion import DiffusionObjective
+    from rmi_learn.policies.fast_sampler import FastSampler
     from rmi_learn.policies.flow import FlowObjective
-    from rmi_learn.policies.ranking import Planner, Standardiser, world_model_scorer
-    from rmi_learn.policies.realtime import FastSampler, RealtimePlanner
     from rmi_learn.policies.unet import PolicyUNet, UNetConfig
     from rmi_learn.world_models import build
     from rmi_learn.world_models.gru import _native_class
@@ -200,8 +203,8 @@ def trained(run: str, objectives: list[str]) -> tuple[Any, ...]:
     from pathlib import Path
 
     from rmi_learn.data.dataset import load_dataset
+    from rmi_learn.planning.standardiser import Standardiser
     from rmi_learn.policies.checkpoint import load_policy
-    from rmi_learn.policies.ranking import Standardiser
     from rmi_learn.world_models import load
 
     root = Path(run)
@@ -262,8 +265,9 @@ def breakdown(net: Any, wms: dict[str, Any], hist: Any, mask: Any, args: Any,
     if "arx" in wms:
         # Refinement of the chosen chunk by the scorer's gradient (control/refine.py): outside
         # inference mode, since it differentiates through the model.
-        from rmi_learn.control.refine import refine_chunk
-        from rmi_learn.policies.ranking import Standardiser, world_model_scorer
+        from rmi_learn.planning.refine import refine_chunk
+        from rmi_learn.planning.scorers import world_model_scorer
+        from rmi_learn.planning.standardiser import Standardiser
 
         std = Standardiser(torch.zeros(18), torch.full((18,), 0.1), torch.tensor([150.0]),
                            torch.tensor([80.0]))  # fmt: skip

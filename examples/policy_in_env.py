@@ -30,7 +30,7 @@ import numpy as np
 import rmi_learn.sim.env  # noqa: F401  (registers rmi/SpongeSqueeze-v0)
 import rmi_sph
 from rmi_learn.errors import InputError
-from rmi_learn.policies import Policy, load_policy
+from rmi_learn.planning import Policy, load_policy
 from rmi_learn.policies.policy import STORED, WORLD_MODEL_DIR
 
 #: Action channels the environment takes, by the size of its action space.

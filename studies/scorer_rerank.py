@@ -2,7 +2,7 @@
 
 Ranking picks one of the K samples that ``rmi control-bench`` already executed and kept in
 ``control_samples.parquet``, so every scorer's controller can be measured again, as executed,
-from those files alone (:func:`rmi_learn.control.rerank.rerank`). This script re-ranks a
+from those files alone (:func:`rmi_learn.control_bench.rerank.rerank`). This script re-ranks a
 finished benchmark output with each world model under ``--wm`` on its own, and with ensembles
 of them at several disagreement weights (J_D, the spread of the members' water forecasts in
 grams), and prints per size and policy the executed error, the paired ratio to the first
@@ -26,9 +26,10 @@ from typing import Any
 import torch
 
 from rmi_learn import world_models as models
-from rmi_learn.control.bench import SCORER_NAMES, _can_score
-from rmi_learn.control.rerank import load_samples, rerank, summary
-from rmi_learn.policies.ranking import CostWeights, EnsembleScorer, world_model_scorer
+from rmi_learn.control_bench.inputs import SCORER_NAMES
+from rmi_learn.control_bench.rerank import load_samples, rerank, summary
+from rmi_learn.planning.cost import CostWeights
+from rmi_learn.planning.scorers import EnsembleScorer, can_score, world_model_scorer
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -48,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     fns: dict[str, Any] = {}
     for cfg in sorted(wm_dir.glob("*/config.json")):
         model, _ = models.load(cfg.parent)
-        if _can_score(model, horizon) is None:
+        if can_score(model, horizon) is None:
             fns[SCORER_NAMES.get(cfg.parent.name, cfg.parent.name)] = world_model_scorer(model)
     configs: dict[str, tuple[Any, Any]] = {n: (f, None) for n, f in fns.items()}
     for spec in (s for s in args.ensembles.split(",") if s.strip()):

@@ -1,5 +1,5 @@
 """``rmi closed-loop``: execute ranked action chunks in the simulator and report the real
-terminal water error (see :mod:`rmi_learn.policies.closed_loop`).
+terminal water error (see :mod:`rmi_learn.closed_loop`).
 
 ``rmi closed-loop --runs SWEEP_DIR --chunks RANK_DIR --out DIR [--max-windows 4]
 [--threads N]``
@@ -44,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Execute the windows and write the tables; 0 on success, 2 for unusable inputs."""
-    from rmi_learn.policies.closed_loop import run_closed_loop
+    from rmi_learn.closed_loop import run_closed_loop
 
     # Inputs that cannot be executed raise ClosedLoopError, an input error (status 2).
     summary = run_closed_loop(

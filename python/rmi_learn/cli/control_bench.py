@@ -1,5 +1,5 @@
 """``rmi control-bench``: the goal-reaching benchmark executed in the simulator (see
-:mod:`rmi_learn.control`).
+:mod:`rmi_learn.control_bench`).
 
 ``rmi control-bench --runs SWEEP_DIR --data DATASET --wm WM_DIR --policy POLICY_DIR --out DIR
 [--states-per-size 4] [--goals-per-state 2] [--setpoints 5] [--k 8] [--receding 8]
@@ -154,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the benchmark and write its tables; 0 on success, 2 for unusable inputs."""
     import torch
 
-    from rmi_learn.control import run_control_bench
+    from rmi_learn.control_bench import run_control_bench
 
     threads = threads_of(args.threads)
     torch.set_num_threads(threads)

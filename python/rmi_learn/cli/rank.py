@@ -1,5 +1,5 @@
 """``rmi rank``: rank K = 8 policy samples per test window with the Transformer world model
-W_T and write the ranking tables and the ranked chunks (see :mod:`rmi_learn.policies.ranking`)."""
+W_T and write the ranking tables and the ranked chunks (see :mod:`rmi_learn.planning.ranking`)."""
 
 from __future__ import annotations
 
@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     """Rank policy samples and write the ranking tables. Returns 0 on success."""
     import torch
 
-    from rmi_learn.policies.ranking import rank
+    from rmi_learn.planning.ranking import rank
 
     torch.set_num_threads(threads_of(args.threads))
     summary = rank(

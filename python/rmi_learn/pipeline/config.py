@@ -168,7 +168,7 @@ class PolicyOptions(StageOptions):
 
 @dataclass(frozen=True)
 class RankOptions(StageOptions):
-    """``rmi rank`` (:func:`rmi_learn.policies.ranking.rank`)."""
+    """``rmi rank`` (:func:`rmi_learn.planning.ranking.rank`)."""
 
     split: str | None = _text()
     k: int | None = _count(1)
@@ -182,7 +182,7 @@ class RankOptions(StageOptions):
 
 @dataclass(frozen=True)
 class ClosedLoopOptions(StageOptions):
-    """``rmi closed-loop`` (:func:`rmi_learn.policies.closed_loop.run_closed_loop`)."""
+    """``rmi closed-loop`` (:func:`rmi_learn.closed_loop.run_closed_loop`)."""
 
     max_windows: int | None = _count(0)
     command: str | None = _text()
@@ -190,7 +190,7 @@ class ClosedLoopOptions(StageOptions):
 
 @dataclass(frozen=True)
 class ControlOptions(StageOptions):
-    """``rmi control-bench`` (:func:`rmi_learn.control.run_control_bench`); the stage runs
+    """``rmi control-bench`` (:func:`rmi_learn.control_bench.run_control_bench`); the stage runs
     only when a preset has a ``control`` key."""
 
     states_per_size: int | None = _count(1)

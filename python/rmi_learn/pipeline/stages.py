@@ -166,7 +166,7 @@ def policy_calls(w: StageContext) -> list[Call]:
 
 
 def rank_calls(w: StageContext) -> list[Call]:
-    from rmi_learn.policies import ranking
+    from rmi_learn.planning import ranking
 
     args = [
         positional("--data", w.data),
@@ -180,7 +180,7 @@ def rank_calls(w: StageContext) -> list[Call]:
 
 
 def closed_loop_calls(w: StageContext) -> list[Call]:
-    from rmi_learn.policies import closed_loop
+    from rmi_learn import closed_loop
 
     args = [
         positional("--runs", w.sweep_dir),
@@ -194,7 +194,7 @@ def closed_loop_calls(w: StageContext) -> list[Call]:
 
 
 def control_calls(w: StageContext) -> list[Call]:
-    from rmi_learn.control import run_control_bench
+    from rmi_learn.control_bench import run_control_bench
 
     given = w.cfg.control.given() if w.cfg.control is not None else {}
     dirs = {"runs": w.sweep_dir, "data": w.data, "wm": w.out / "wm", "policy": w.out / "policy"}

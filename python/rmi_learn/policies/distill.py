@@ -125,7 +125,7 @@ def distill_policy(
 
     from rmi_learn.data.dataset import load_dataset
     from rmi_learn.policies.checkpoint import load_policy, make_objective, model_config
-    from rmi_learn.policies.realtime import FastSampler, schedule
+    from rmi_learn.policies.fast_sampler import FastSampler, schedule
     from rmi_learn.trainer import CONFIG_FILE, save_weights
 
     if steps not in (1, 2):

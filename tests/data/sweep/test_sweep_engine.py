@@ -20,7 +20,7 @@ from rmi_learn.data.sweep import (
     run_sweep,
     validate_grid,
 )
-from rmi_learn.policies.closed_loop import control_substeps
+from rmi_learn.sim.replay import control_substeps
 
 
 def test_tiny_preset_runs_with_the_engine_and_resumes(tmp_path: Path) -> None:

@@ -14,17 +14,15 @@ import torch
 from torch import Tensor
 
 from rmi_learn.errors import InputError
+from rmi_learn.planning.planner import Planner
+from rmi_learn.planning.realtime import RealtimePlanner, load_realtime_planner
+from rmi_learn.planning.refine import refine_chunk
+from rmi_learn.planning.scorers import world_model_scorer
+from rmi_learn.planning.standardiser import Standardiser
 from rmi_learn.policies.checkpoint import load_policy, make_objective, model_config
 from rmi_learn.policies.diffusion import DiffusionObjective
+from rmi_learn.policies.fast_sampler import FastSampler, mish, schedule
 from rmi_learn.policies.flow import FlowObjective
-from rmi_learn.policies.ranking import Planner, Standardiser, world_model_scorer
-from rmi_learn.policies.realtime import (
-    FastSampler,
-    RealtimePlanner,
-    load_realtime_planner,
-    mish,
-    schedule,
-)
 from rmi_learn.policies.unet import PolicyUNet, UNetConfig
 from rmi_learn.trainer import save_weights
 from rmi_learn.world_models import build
@@ -128,7 +126,6 @@ def test_realtime_planner_selects_what_the_planner_selects(name: str, scorer: st
 
 
 def test_act_refines_the_selected_chunk_toward_the_goal() -> None:
-    from rmi_learn.control.refine import refine_chunk
     from rmi_learn.world_models.arx import LinearARX
 
     torch.manual_seed(2)

@@ -20,9 +20,14 @@ from typing import Any
 
 import numpy as np
 import polars as pl
+import torch
 
-from rmi_learn.control import measures
-from rmi_learn.control.bench import SAMPLES_FILE, ControlBenchError
+from rmi_learn.control_bench import measures
+from rmi_learn.control_bench.checkpoint import SAMPLES_FILE
+from rmi_learn.control_bench.inputs import ControlBenchError
+from rmi_learn.data.dataset import load_dataset
+from rmi_learn.planning.scorers import score_chunks
+from rmi_learn.planning.standardiser import Standardiser
 
 
 @dataclass(frozen=True)
@@ -68,15 +73,10 @@ def rerank(
     data: str | Path | None = None,
 ) -> dict[str, list[RankedGroup]]:
     """Re-rank every policy group of ``control_dir`` with each of ``scorers`` (name ->
-    (:data:`~rmi_learn.policies.ranking.Scorer`, :class:`~rmi_learn.policies.ranking.CostWeights`
+    (:data:`~rmi_learn.planning.scorers.Scorer`, :class:`~rmi_learn.planning.cost.CostWeights`
     or None)), by the combined cost J as the benchmark ranks. ``data``: the dataset (default
     the one the benchmark used). Returns, per scorer name, one :class:`RankedGroup` per
     (state, goal, policy)."""
-    import torch
-
-    from rmi_learn.data.dataset import load_dataset
-    from rmi_learn.policies.ranking import Standardiser, score_chunks
-
     control_dir = Path(control_dir)
     frame, info = load_samples(control_dir)
     ds = load_dataset(data or info["data"])

@@ -22,17 +22,12 @@ import pytest
 
 import rmi_sph
 from rmi_learn.cli import main
+from rmi_learn.closed_loop import run_closed_loop
+from rmi_learn.closed_loop.table import WINDOWS_FILE
 from rmi_learn.data.runs import RUN_COLUMNS, read_run, write_run
 from rmi_learn.data.schema import CONTROL_DT
 from rmi_learn.data.sweep import RunSpec, run_sweep
-from rmi_learn.policies.closed_loop import (
-    WINDOWS_FILE,
-    RunTrack,
-    Window,
-    check_anchor,
-    load_track,
-    run_closed_loop,
-)
+from rmi_learn.sim.replay import RunTrack, check_anchor, load_track
 from tiny_trial import TINY
 
 PARAMS: dict[str, Any] = {
@@ -149,7 +144,7 @@ def test_replay_to_the_anchor_reproduces_the_stored_record(sweep_dir: Path) -> N
         else:
             assert (got == want).all(), name
     # The command's own check (observation at the anchor against the resampled record).
-    check_anchor(sim, track, Window(rid, PARAMS["size_cm"], t, ()))
+    check_anchor(sim, track, rid, t)
     assert str(stored["phase"].to_numpy()[n - 1]) == str(track.phase[t]) == sim.phase
 
 

@@ -20,23 +20,22 @@ import pytest
 import torch
 
 from rmi_learn.cli import main
-from rmi_learn.control import run_control_bench
-from rmi_learn.control.bench import (
-    ACTING_PHASES,
-    SAMPLES_FILE,
-    SETPOINT_LOW_FRACTION,
-    WINDOWS_FILE,
-    candidates,
-    simulator_scorer,
-)
-from rmi_learn.control.execute import execute_forces
+from rmi_learn.control_bench import ACTING_PHASES, SETPOINT_LOW_FRACTION, run_control_bench
+from rmi_learn.control_bench.checkpoint import SAMPLES_FILE, WINDOWS_FILE
+from rmi_learn.control_bench.controllers import simulator_scorer
+from rmi_learn.control_bench.inputs import candidates
+from rmi_learn.control_bench.rerank import rerank
 from rmi_learn.data.dataset import build_dataset, load_dataset
 from rmi_learn.data.schema import CONTROL_DT, FORCE_LIMIT_N
 from rmi_learn.data.sweep import RunSpec, run_sweep
+from rmi_learn.planning.cost import CostWeights
+from rmi_learn.planning.planner import Planner
+from rmi_learn.planning.scorers import EnsembleScorer, world_model_scorer
+from rmi_learn.planning.standardiser import Standardiser
 from rmi_learn.policies.checkpoint import make_objective, model_config
-from rmi_learn.policies.closed_loop import load_index, load_track
-from rmi_learn.policies.ranking import CostWeights, Planner, Standardiser
 from rmi_learn.policies.unet import PolicyUNet, UNetConfig
+from rmi_learn.sim.execute import execute_forces
+from rmi_learn.sim.replay import load_index, load_track
 from rmi_learn.trainer import save_weights
 from rmi_learn.world_models.gru import ACGRUWM
 from tiny_trial import TINY
@@ -78,15 +77,18 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     ds = load_dataset(data)
     assert len(ds.split_runs("test")) == 1
     torch.manual_seed(0)
-    unet = UNetConfig(horizon=H, channels=(16, 32), time_embed_dim=16, gru_hidden=16,
-                      goal_hidden=16, n_groups=4)
+    unet = UNetConfig(
+        horizon=H, channels=(16, 32), time_embed_dim=16, gru_hidden=16, goal_hidden=16, n_groups=4
+    )
     objective = make_objective("flow", n_sample_steps=2)
     net = PolicyUNet(unet)
     pol = root / "policy" / "flow"
     _write_json(
         pol / "config.json",
-        {"model": model_config(unet, objective, L),
-         "extra": {"water_std_kg": float(ds.stats.z_std[0])}},
+        {
+            "model": model_config(unet, objective, L),
+            "extra": {"water_std_kg": float(ds.stats.z_std[0])},
+        },
     )
     save_weights(net.state_dict(), pol / "model.ema.safetensors")
     wm = ACGRUWM(hidden=16, layers=1, u_embed=8)
@@ -94,8 +96,13 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     stats = ds.stats.to_json()
     _write_json(wdir / "config.json", {"model": wm.config(), "extra": {"stats": stats}})
     save_weights(wm.state_dict(), wdir / "model.safetensors")
-    return {"root": root, "runs": root / "sweep", "data": data, "wm": root / "wm",
-            "policy": root / "policy"}
+    return {
+        "root": root,
+        "runs": root / "sweep",
+        "data": data,
+        "wm": root / "wm",
+        "policy": root / "policy",
+    }
 
 
 def _sim_at(inputs: dict[str, Path], run_id: str, t: int) -> tuple[Any, bytes, Any, int]:
@@ -145,16 +152,25 @@ def test_ranking_with_the_simulator_as_scorer_is_best_of_k(inputs: dict[str, Pat
 
     net, objective, _ = load_policy(inputs["policy"] / "flow")
     k = 3
-    oracle = Planner(net, objective, simulator_scorer(sim, state, sub, std), std, k=k,
-                     weights=CostWeights(water=1.0, force=0.0, slip=0.0, jerk=0.0))
+    oracle = Planner(
+        net,
+        objective,
+        simulator_scorer(sim, state, sub, std),
+        std,
+        k=k,
+        weights=CostWeights(water=1.0, force=0.0, slip=0.0, jerk=0.0),
+    )
     b = ds.windows("test", 8, history=L, horizon=H).batch([c.window])
     goal = torch.tensor([float(track.water[c.t + H]) - 0.002], dtype=torch.float32)
     g_std = (goal - std.z_mean[0]) / std.z_std[0]
-    res = oracle.plan(b["hist"], b["hist_mask"], g_std, b["water_now"],
-                      generator=torch.Generator().manual_seed(0))
+    res = oracle.plan(
+        b["hist"], b["hist_mask"], g_std, b["water_now"], generator=torch.Generator().manual_seed(0)
+    )
     errs = [
-        abs(execute_forces(sim, state, res.samples[0, j, :, 0].double().numpy(), sub).M_L
-            - float(res.goal_kg[0]))
+        abs(
+            execute_forces(sim, state, res.samples[0, j, :, 0].double().numpy(), sub).M_L
+            - float(res.goal_kg[0])
+        )
         for j in range(k)
     ]
     assert errs[int(res.index[0])] == min(errs)
@@ -165,8 +181,7 @@ def _rows(out: Path) -> pl.DataFrame:
 
 
 def test_benchmark_invariants_threads_and_resume(inputs: dict[str, Path], tmp_path: Path) -> None:
-    kw = dict(states_per_size=1, goals_per_state=1, setpoints=3, k=2, receding=16,
-              progress=False)
+    kw = dict(states_per_size=1, goals_per_state=1, setpoints=3, k=2, receding=16, progress=False)
     args = [inputs[n] for n in ("runs", "data", "wm", "policy")]
     one = run_control_bench(*args, tmp_path / "t1", threads=1, **kw)  # type: ignore[arg-type]
     two = run_control_bench(*args, tmp_path / "t2", threads=2, **kw)  # type: ignore[arg-type]
@@ -177,10 +192,18 @@ def test_benchmark_invariants_threads_and_resume(inputs: dict[str, Path], tmp_pa
         assert (tmp_path / "t1" / f).stat().st_size > 0
     rows = a.to_dicts()
     ctrls = {r["controller"] for r in rows}
-    assert {"recorded", "constant-best", "first-sample/flow", "best-of-k/flow",
-            "ranked-ac-gru/flow", "receding-16/flow", "refined-ac-gru/flow",
-            "receding-16-refined-ac-gru/flow", "model-ac-gru",
-            "receding-16-model-ac-gru"} <= ctrls
+    assert {
+        "recorded",
+        "constant-best",
+        "first-sample/flow",
+        "best-of-k/flow",
+        "ranked-ac-gru/flow",
+        "receding-16/flow",
+        "refined-ac-gru/flow",
+        "receding-16-refined-ac-gru/flow",
+        "model-ac-gru",
+        "receding-16-model-ac-gru",
+    } <= ctrls
     assert all(r["status"] == "ok" for r in rows)
     by = {(r["goal_kind"], r["goal_index"], r["controller"]): r for r in rows}
     for (kind, gi, ctrl), r in by.items():
@@ -208,19 +231,31 @@ def test_a_subset_of_controllers_executes_only_what_it_needs(
 ) -> None:
     # Same states, goals and draws as the full benchmark: the chosen controllers' rows match
     # it, and without best-of-K no policy sample is kept (their groups would be partial).
-    kw = dict(states_per_size=1, goals_per_state=1, setpoints=2, k=3, receding=16,
-              refine_metrics=["smooth", "l2"], progress=False)
+    kw = dict(
+        states_per_size=1,
+        goals_per_state=1,
+        setpoints=2,
+        k=3,
+        receding=16,
+        refine_metrics=["smooth", "l2"],
+        progress=False,
+    )
     args = [inputs[n] for n in ("runs", "data", "wm", "policy")]
     run_control_bench(*args, tmp_path / "all", **kw)  # type: ignore[arg-type]
     part = ["first-sample", "ranked", "refined", "receding-refined"]
-    res = run_control_bench(*args, tmp_path / "part", controllers=part,
-                            **kw)  # type: ignore[arg-type]
+    res = run_control_bench(*args, tmp_path / "part", controllers=part, **kw)  # type: ignore[arg-type]
     assert res["controllers"] == part
     full, sub = _rows(tmp_path / "all"), _rows(tmp_path / "part")
     ctrls = set(sub["controller"].to_list())
-    assert ctrls == {"recorded", "constant-best", "first-sample/flow", "ranked-ac-gru/flow",
-                     "refined-ac-gru/flow", "refined-l2-ac-gru/flow",
-                     "receding-16-refined-ac-gru/flow"}
+    assert ctrls == {
+        "recorded",
+        "constant-best",
+        "first-sample/flow",
+        "ranked-ac-gru/flow",
+        "refined-ac-gru/flow",
+        "refined-l2-ac-gru/flow",
+        "receding-16-refined-ac-gru/flow",
+    }
     keys = ["goal_kind", "goal_index", "controller"]
     cols = ["M_L_end_kg", "err_g", "sample_index", "pred_err_g"]
     same = sub.select(keys + cols).join(full.select(keys + cols), on=keys, suffix="_all")
@@ -249,13 +284,18 @@ def test_a_subset_of_controllers_executes_only_what_it_needs(
     ],
 )
 def test_bad_inputs_exit_2_with_one_line(
-    inputs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str],
-    extra: list[str], needle: str,
+    inputs: dict[str, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    extra: list[str],
+    needle: str,
 ) -> None:
     out = tmp_path / "o"
-    argv = ["control-bench"] + [
-        a for n in ("runs", "data", "wm", "policy") for a in (f"--{n}", str(inputs[n]))
-    ] + ["--out", str(out), "--no-progress", *extra]
+    argv = (
+        ["control-bench"]
+        + [a for n in ("runs", "data", "wm", "policy") for a in (f"--{n}", str(inputs[n]))]
+        + ["--out", str(out), "--no-progress", *extra]
+    )
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("rmi control-bench: ") and needle in err[0]
@@ -322,11 +362,17 @@ def test_every_executed_chunk_is_kept_with_every_scorers_forecast(
     shutil.copy(inputs["wm"] / "ac-gru" / "config.json", _mkdir(wm / "ac-gru-b") / "config.json")
     save_weights(other.state_dict(), wm / "ac-gru-b" / "model.safetensors")
     k, n_set = 3, 3
-    kw = dict(states_per_size=1, goals_per_state=1, setpoints=n_set, k=k, receding=16,
-              receding_scorers=["ac-gru", "ensemble"], progress=False)
+    kw = dict(
+        states_per_size=1,
+        goals_per_state=1,
+        setpoints=n_set,
+        k=k,
+        receding=16,
+        receding_scorers=["ac-gru", "ensemble"],
+        progress=False,
+    )
     out = tmp_path / "out"
-    res = run_control_bench(inputs["runs"], inputs["data"], wm, inputs["policy"], out,
-                            **kw)  # type: ignore[arg-type]
+    res = run_control_bench(inputs["runs"], inputs["data"], wm, inputs["policy"], out, **kw)  # type: ignore[arg-type]
     scorers = res["sample_scorers"]
     assert scorers == ["ac-gru", "ac-gru-b", "ensemble"]
     rows = _rows(out).to_dicts()
@@ -341,10 +387,15 @@ def test_every_executed_chunk_is_kept_with_every_scorers_forecast(
     assert len(rec) == 1
     assert rec[0]["M_L_end_kg"] == by[("logged", 0, "recorded")]["M_L_end_kg"]
     for kind, gi in {(r["goal_kind"], r["goal_index"]) for r in rows}:
-        own = samples.filter(
-            (pl.col("objective") == "flow") & (pl.col("goal_kind") == kind)
-            & (pl.col("goal_index") == gi)
-        ).sort("sample_index").to_dicts()
+        own = (
+            samples.filter(
+                (pl.col("objective") == "flow")
+                & (pl.col("goal_kind") == kind)
+                & (pl.col("goal_index") == gi)
+            )
+            .sort("sample_index")
+            .to_dicts()
+        )
         assert [r["sample_index"] for r in own] == list(range(k))
         assert all(len(r["forces_N"]) == H for r in own)
         goal = own[0]["goal_kg"]
@@ -363,20 +414,18 @@ def test_every_executed_chunk_is_kept_with_every_scorers_forecast(
     assert (out / "fig_control_scorers.png").stat().st_size > 0
     # Ranking the stored samples again with the same scorers makes the same choices.
     from rmi_learn import world_models as models
-    from rmi_learn.control.rerank import rerank
-    from rmi_learn.policies.ranking import EnsembleScorer, world_model_scorer
 
     fns = {n: world_model_scorer(models.load(wm / n)[0]) for n in ("ac-gru", "ac-gru-b")}
-    again_ranked = rerank(out, {**{n: (f, None) for n, f in fns.items()},
-                                "ensemble": (EnsembleScorer(fns), None)})
+    again_ranked = rerank(
+        out, {**{n: (f, None) for n, f in fns.items()}, "ensemble": (EnsembleScorer(fns), None)}
+    )
     for name, groups in again_ranked.items():
         assert len(groups) == len({(r["goal_kind"], r["goal_index"]) for r in rows})
         for grp in groups:
             r = by[(grp.goal_kind, grp.goal_index, f"ranked-{name}/flow")]
             assert grp.index == r["sample_index"] and grp.err_g == pytest.approx(r["err_g"])
     # Resume changes neither file.
-    again = run_control_bench(inputs["runs"], inputs["data"], wm, inputs["policy"], out,
-                              **kw)  # type: ignore[arg-type]
+    again = run_control_bench(inputs["runs"], inputs["data"], wm, inputs["policy"], out, **kw)  # type: ignore[arg-type]
     assert again["states_run_now"] == 0
     assert pl.read_parquet(out / SAMPLES_FILE).equals(samples, null_equal=True)
 

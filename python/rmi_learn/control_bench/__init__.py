@@ -5,12 +5,12 @@ controller is executed in the SPH engine from the same start states toward the s
 and the executed terminal water error is compared.
 
 - Executed action: a chunk's H force setpoints F_target, each held for one 20 ms control
-  step and tracked by the engine's force loop (:mod:`.execute`); v_cmd is the force loop's
-  own output and is not executed.
+  step and tracked by the engine's force loop (:mod:`rmi_learn.sim.execute`); v_cmd is the
+  force loop's own output and is not executed.
 - Start states: held-out windows (test split, else validation) whose anchor lies in an
   acting phase (hold, lift, waiting, squeeze), rebuilt by deterministic replay of the run
-  (:func:`rmi_learn.policies.closed_loop.load_track`, ``check_anchor``), drawn in a seeded
-  order and deduplicated by a fingerprint of the physical state.
+  (:mod:`rmi_learn.sim.replay`), drawn in a seeded order and deduplicated by a fingerprint
+  of the physical state (:mod:`rmi_learn.sim.fingerprint`).
 - Goals: a sweep of constant setpoints from 0.8 F_hold to the force limit gives the
   reachable interval of terminal M_L; goals are drawn uniformly inside it, and the logged
   goal (M_L at t + H) is reported apart.
@@ -18,23 +18,19 @@ and the executed terminal water error is compared.
   ``ranked-<scorer>/<policy>``, ``best-of-k/<policy>`` (the ceiling of ranking) and
   ``receding-<n>/<policy>`` (re-planning every n control steps from the observed history).
 
-:func:`run_control_bench` is the library entry point; :mod:`.measures` the statistics.
+Modules: :mod:`.inputs` (policies, scorers, candidate start states, goals),
+:mod:`.controllers` (the controllers of one start state), :mod:`.checkpoint` (the
+checkpointed rows), :mod:`.driver` (:func:`run_control_bench`), :mod:`.measures` (the
+statistics, table and figures) and :mod:`.rerank` (ranking the executed samples again).
 """
 
-from rmi_learn.control.bench import (
-    ACTING_PHASES,
-    SETPOINT_LOW_FRACTION,
-    ControlBenchError,
-    run_control_bench,
-)
-from rmi_learn.control.execute import execute_forces, run_forces, state_fingerprint
+from rmi_learn.control_bench.controllers import SETPOINT_LOW_FRACTION
+from rmi_learn.control_bench.driver import run_control_bench
+from rmi_learn.control_bench.inputs import ACTING_PHASES, ControlBenchError
 
 __all__ = [
     "ACTING_PHASES",
     "SETPOINT_LOW_FRACTION",
     "ControlBenchError",
-    "execute_forces",
     "run_control_bench",
-    "run_forces",
-    "state_fingerprint",
 ]

@@ -57,8 +57,13 @@ def bootstrap_ci(
 def _centre(x: Sequence[float], rng: np.random.Generator) -> dict[str, Any]:
     v = np.asarray(x, dtype=np.float64)
     if v.size == 0:
-        return {"n": 0, "median": None, "median_ci": [None, None], "mean": None,
-                "mean_ci": [None, None]}
+        return {
+            "n": 0,
+            "median": None,
+            "median_ci": [None, None],
+            "mean": None,
+            "mean_ci": [None, None],
+        }
     return {
         "n": int(v.size),
         "median": float(np.median(v)),
@@ -250,7 +255,13 @@ def _count(xs: Sequence[str]) -> dict[str, int]:
 
 
 _ORDER = (
-    "recorded", "constant-best", "first-sample", "ranked-", "refined-", "best-of-k", "model-",
+    "recorded",
+    "constant-best",
+    "first-sample",
+    "ranked-",
+    "refined-",
+    "best-of-k",
+    "model-",
     "receding-",
 )
 
@@ -315,9 +326,7 @@ def markdown(
                     f"{fails} | {_f(e.get('spearman_mean')) if 'spearman_mean' in e else '-'} |"
                 )
             if kind == "logged":
-                diag = [
-                    (c, e) for c, e in s["controllers"].items() if "recorded_ranked_first" in e
-                ]
+                diag = [(c, e) for c, e in s["controllers"].items() if "recorded_ranked_first" in e]
                 if diag:
                     lines += [
                         "",
@@ -421,6 +430,16 @@ def figure_scorers(
     plt.close(fig)
 
 
-__all__ = ["BOOTSTRAP", "TIE_G", "bootstrap_ci", "diagnostics_markdown", "figure",
-           "figure_scorers", "markdown", "rankdata", "scorer_diagnostics", "spearman",
-           "summarise"]
+__all__ = [
+    "BOOTSTRAP",
+    "TIE_G",
+    "bootstrap_ci",
+    "diagnostics_markdown",
+    "figure",
+    "figure_scorers",
+    "markdown",
+    "rankdata",
+    "scorer_diagnostics",
+    "spearman",
+    "summarise",
+]

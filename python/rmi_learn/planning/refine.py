@@ -96,8 +96,8 @@ def refine_chunk(
     """Refine the force chunks ``u_phys`` (N, H, 1) in N so that ``scorer``'s forecast of the
     retained water after command ``step`` (0-based, default H - 1) meets ``goal_kg`` (N,) kg.
 
-    ``scorer`` follows :data:`rmi_learn.policies.ranking.Scorer` and must be differentiable
-    in the actions; ``std`` is the :class:`~rmi_learn.policies.ranking.Standardiser`;
+    ``scorer`` follows :data:`rmi_learn.planning.scorers.Scorer` and must be differentiable
+    in the actions; ``std`` is the :class:`~rmi_learn.planning.standardiser.Standardiser`;
     ``hist``/``hist_mask`` (N, L, 23) one history per chunk. ``lower`` (N) is a bound, or a
     tensor broadcastable to ``u_phys``; ``upper`` the force limit (N); ``metric`` one of
     :data:`METRICS`. Returns :class:`Refined`; the scorer's parameters get no gradient."""

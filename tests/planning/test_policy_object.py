@@ -17,20 +17,17 @@ import numpy as np
 import pytest
 import torch
 
+import rmi_learn.planning as planning
 from rmi_learn.data.dataset import load_dataset
 from rmi_learn.data.schema import FORCE_LIMIT_N, OBS
 from rmi_learn.errors import InputError
+from rmi_learn.planning.cost import clip_forces
+from rmi_learn.planning.planner import Planner
+from rmi_learn.planning.policy import Policy, load_policy, observation_row
+from rmi_learn.planning.scorers import world_model_scorer
+from rmi_learn.planning.standardiser import Standardiser
 from rmi_learn.policies import checkpoint
-from rmi_learn.policies.policy import (
-    STORED,
-    WORLD_MODEL_DIR,
-    Policy,
-    attach_world_model,
-    load_policy,
-    observation_row,
-    parse_stats,
-)
-from rmi_learn.policies.ranking import Planner, Standardiser, clip_forces, world_model_scorer
+from rmi_learn.policies.policy import STORED, WORLD_MODEL_DIR, attach_world_model, parse_stats
 from rmi_learn.trainer import save_weights
 from rmi_learn.world_models import build
 from rmi_learn.world_models import load as load_world_model
@@ -132,9 +129,7 @@ def test_the_moved_run_acts_without_its_dataset(
     assert torch.equal(torch.from_numpy(picked), planner.last_plan.selected[0])
 
     # The package-level name is this loader.
-    import rmi_learn.policies as policies
-
-    assert policies.load_policy is load_policy and policies.Policy is Policy
+    assert planning.load_policy is load_policy and planning.Policy is Policy
 
 
 def test_act_equals_the_sampler_and_planner_paths(

@@ -1,12 +1,13 @@
-"""Model-based refinement of a force chunk (rmi_learn.control.refine)."""
+"""Model-based refinement of a force chunk (rmi_learn.planning.refine)."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from rmi_learn.control.refine import METRICS, refine_chunk
-from rmi_learn.policies.ranking import Standardiser, world_model_scorer
+from rmi_learn.planning.refine import METRICS, refine_chunk
+from rmi_learn.planning.scorers import world_model_scorer
+from rmi_learn.planning.standardiser import Standardiser
 from rmi_learn.world_models.arx import LinearARX
 
 H, L = 32, 4
@@ -112,5 +113,4 @@ def test_the_linear_arx_world_model_is_refined_through_autograd() -> None:
 def test_bad_arguments_are_refused(kw: dict[str, object]) -> None:
     hist, mask, u = _inputs(1)
     with pytest.raises(ValueError):
-        refine_chunk(_affine(torch.ones(H), 0.0), _std(), hist, mask, u, torch.tensor([0.2]),
-                     **kw)  # type: ignore[arg-type]
+        refine_chunk(_affine(torch.ones(H), 0.0), _std(), hist, mask, u, torch.tensor([0.2]), **kw)  # type: ignore[arg-type]

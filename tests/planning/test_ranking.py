@@ -15,17 +15,12 @@ import pytest
 import torch
 from torch import Tensor
 
+from rmi_learn.planning.cost import CostWeights, clip_forces, cost_terms, jerk
+from rmi_learn.planning.planner import Planner
+from rmi_learn.planning.scorers import EnsembleScorer
+from rmi_learn.planning.standardiser import Standardiser
 from rmi_learn.policies.diffusion import DiffusionObjective
 from rmi_learn.policies.flow import FlowObjective
-from rmi_learn.policies.ranking import (
-    CostWeights,
-    EnsembleScorer,
-    Planner,
-    Standardiser,
-    clip_forces,
-    cost_terms,
-    jerk,
-)
 from rmi_learn.policies.unet import PolicyUNet, UNetConfig
 
 torch.set_num_threads(1)
@@ -80,8 +75,11 @@ def test_ensemble_scores_the_mean_and_penalises_the_spread() -> None:
     assert torch.allclose(water, STD.water_to_kg(torch.tensor([[1.5, 0.5]])))
     assert torch.allclose(costs["J_M"], torch.tensor([[0.0, 200.0]]), atol=1e-3)
     assert torch.allclose(costs["J_D"], torch.tensor([[100.0, 100.0]]), atol=1e-3)
-    assert torch.allclose(costs["J"] - costs["J_M"] - 2.0 * costs["J_D"],
-                          1e-4 * u[..., 0].amax(-1) + 0.05 * 0.5, atol=1e-3)
+    assert torch.allclose(
+        costs["J"] - costs["J_M"] - 2.0 * costs["J_D"],
+        1e-4 * u[..., 0].amax(-1) + 0.05 * 0.5,
+        atol=1e-3,
+    )
     # As a plain scorer it is the members' mean.
     z, _, _ = ens(torch.zeros(2, 16, 23), torch.ones(2, 16, 23), torch.zeros(2, 32, 1))
     assert torch.allclose(z[..., 0], torch.full((2, 32), 1.5))
