@@ -20,7 +20,7 @@ from rmi_learn.cli.argtypes import add_threads, count, device, positive, seed, t
 from rmi_learn.cli.options_file import add_config_option
 from rmi_learn.data.schema import SPONGE_SIZES_CM
 from rmi_learn.errors import InputError
-from rmi_learn.world_models.training import (
+from rmi_learn.world_models.training_settings import (
     GROUP_CHOICES,
     HUBER_DELTA,
     LOSS_SCALES,
