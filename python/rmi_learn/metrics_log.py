@@ -117,3 +117,28 @@ def loss_curves(run_dir: str | os.PathLike[str]) -> dict[str, list[float]]:
     if best:
         out["best_epoch"] = [best[-1]]
     return out
+
+
+def append_record(run_dir: str | os.PathLike[str], record: dict[str, Any]) -> None:
+    """Append ``record`` as one line of ``run_dir/metrics.jsonl`` (keys sorted; numbers that
+    JSON cannot hold as such, e.g. numpy scalars, as floats)."""
+    with open(Path(run_dir) / METRICS_FILE, "a", encoding="utf-8") as f:
+        f.write(json.dumps(record, sort_keys=True, default=float) + "\n")
+
+
+def drop_records_after(run_dir: str | os.PathLike[str], step: int) -> None:
+    """Keep only the lines of ``run_dir/metrics.jsonl`` written at optimiser steps up to
+    ``step`` (a resumed run's checkpoint), so that lines logged after the checkpoint by an
+    interrupted call are not repeated; lines cut short are dropped."""
+    path = Path(run_dir) / METRICS_FILE
+    if not path.exists():
+        return
+    keep = []
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if rec.get("step", 0) <= step:
+            keep.append(line)
+    path.write_text("".join(k + "\n" for k in keep), encoding="utf-8")

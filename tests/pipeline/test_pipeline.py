@@ -289,10 +289,10 @@ def test_every_stage_runs_its_library_call_with_the_arguments_it_records(
     import torch
 
     import rmi_learn.control_bench as control
+    from rmi_learn import closed_loop
     from rmi_learn.analysis import physical
     from rmi_learn.analysis import report as reporting
     from rmi_learn.data import dataset, sweep
-    from rmi_learn import closed_loop
     from rmi_learn.planning import ranking
     from rmi_learn.policies import training as policy_training
     from rmi_learn.world_models import evaluation

@@ -11,16 +11,9 @@ import torch
 
 from rmi_learn.errors import InputError
 from rmi_learn.world_models import load
-from rmi_learn.world_models.training import select_metric, train
+from rmi_learn.world_models.training import train
 
 torch.set_num_threads(1)
-
-
-def test_the_selection_step_lies_within_the_horizon() -> None:
-    assert select_metric("val_water_mae_g@64", 64) == "val_water_mae_g@64"
-    assert select_metric("val_water_mae_g@64", 32) == "val_water_mae_g@32"
-    assert select_metric("val_water_mae_g@64", 20) == "val_water_mae_g@16"
-    assert select_metric("val_water_mae_g_mean", 32) == "val_water_mae_g_mean"
 
 
 def test_a_32_step_lookahead_model_learns_from_32_step_windows(

@@ -422,7 +422,7 @@ class _LinearWindows:
         # the earlier ones, so a lookahead fit can lean on it.
         self.actions = base + 0.3 * torch.randn(n, 5, N_U, generator=g)
         x = LinearARX(history=4, horizon=5).features(self.hist, self.mask, self.actions)
-        w_true = (torch.randn(x.shape[1], 5, 18, generator=g) * 0.1)
+        w_true = torch.randn(x.shape[1], 5, 18, generator=g) * 0.1
         if causal:
             n_hist = x.shape[1] - 5 * N_U
             for k in range(5):
@@ -673,7 +673,8 @@ def test_loss_scale_change_is_the_mlp_default_stores_the_scale_and_is_fixed_on_r
     synthetic_dataset_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     from rmi_learn.data.dataset import load_dataset
-    from rmi_learn.world_models.training import DEBUG_TRAIN_WINDOWS, _subset
+    from rmi_learn.world_models.training import debug_subset
+    from rmi_learn.world_models.training_settings import DEBUG_TRAIN_WINDOWS
 
     out = tmp_path / "mlp"
     base: tuple[str, ...] = ("train-wm", "--model", "ac-mlp", "--data", str(synthetic_dataset_dir))
@@ -681,7 +682,7 @@ def test_loss_scale_change_is_the_mlp_default_stores_the_scale_and_is_fixed_on_r
     assert _cli(*base) == 0
     extra = json.loads((out / "config.json").read_text())["extra"]
     assert extra["loss_scale"] == "change"
-    ws = _subset(load_dataset(synthetic_dataset_dir).windows("train"), DEBUG_TRAIN_WINDOWS, 0)
+    ws = debug_subset(load_dataset(synthetic_dataset_dir).windows("train"), DEBUG_TRAIN_WINDOWS, 0)
     np.testing.assert_allclose(extra["channel_scale"], change_scale(ws).numpy(), rtol=1e-6)
     capsys.readouterr()
     assert _cli(*base, "--resume", "--loss-scale", "state") == 2

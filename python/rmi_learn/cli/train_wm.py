@@ -21,7 +21,7 @@ from rmi_learn.cli.threads import add_threads, threads_of
 from rmi_learn.data.schema import SPONGE_SIZES_CM
 from rmi_learn.errors import InputError
 from rmi_learn.option_types import count, device, positive, seed
-from rmi_learn.world_models.training import (
+from rmi_learn.world_models.training_settings import (
     GROUP_CHOICES,
     HUBER_DELTA,
     LOSS_SCALES,

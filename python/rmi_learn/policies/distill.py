@@ -30,6 +30,7 @@ weights): its objective's ``n_sample_steps`` is the student's step count, and
 
 from __future__ import annotations
 
+import copy
 import json
 import time
 from pathlib import Path
@@ -158,24 +159,79 @@ def distill_policy(
     sched = schedule(s_objective)
     student = copy.deepcopy(teacher).train()
     opt = torch.optim.AdamW(student.parameters(), lr=lr, weight_decay=0.0)
-
-    def distance(net: Any) -> float:
-        """Mean squared distance of the student's chunks to the teacher's (validation)."""
-        net.eval()
-        total, n = 0.0, 0
-        with torch.no_grad():
-            for start in range(0, val_pairs["noise"].shape[0], 256):
-                sl = slice(start, start + 256)
-                cond = net.encode_condition(val_pairs["hist"][sl], val_pairs["hist_mask"][sl],
-                                            val_pairs["goal"][sl])  # fmt: skip
-                x = few_step_sample(net, sched, cond, val_pairs["noise"][sl])
-                total += float((x - val_pairs["target"][sl]).pow(2).sum())
-                n += x.numel()
-        return total / n
-
     out.mkdir(parents=True, exist_ok=True)
-    metrics_path = out / "metrics.jsonl"
-    initial = distance(student)
+    best, history_rows, seconds = _train_student(
+        student, opt, sched, train_pairs, val_pairs, epochs, batch_size, gen, progress
+    )
+    student.load_state_dict(best[2])
+    distill = {
+        "teacher": str(Path(policy).resolve()),
+        "teacher_weights": weights,
+        "teacher_objective": m["objective"],
+        "teacher_steps": t_sampler.schedule.steps,
+        "steps": steps,
+        "method": "flow-pair-distillation" if m["objective"] == "flow" else "x0-pair-distillation",
+        "pairs": int(train_pairs["noise"].shape[0]),
+        "val_pairs": int(val_pairs["noise"].shape[0]),
+        "epochs": epochs,
+        "lr": lr,
+        "batch_size": batch_size,
+        "seed": seed,
+        "val_distance_initial": history_rows[0]["val_distance"],
+        "val_distance": best[0],
+        "selected_epoch": best[1],
+    }
+    config = {
+        "model": model_config(student.config, s_objective, history),
+        "distill": distill,
+        "extra": {
+            **(tcfg.get("extra") or {}),
+            "data": str(Path(dataset).resolve()),
+            "stats": ds.stats.to_json(),
+        },
+    }
+    tensors = {k: v for k, v in student.state_dict().items()}
+    save_weights(tensors, out / "model.safetensors")
+    save_weights(tensors, out / "model.ema.safetensors")
+    _write_run_files(out, history_rows, config, CONFIG_FILE)
+    return {"out": str(out), "seconds": seconds, "history": history_rows, **distill}
+
+
+def _val_distance(net: Any, sched: Any, val_pairs: dict[str, Any]) -> float:
+    """Mean squared distance of the student's chunks to the teacher's (validation)."""
+    import torch
+
+    net.eval()
+    total, n = 0.0, 0
+    with torch.no_grad():
+        for start in range(0, val_pairs["noise"].shape[0], 256):
+            sl = slice(start, start + 256)
+            cond = net.encode_condition(val_pairs["hist"][sl], val_pairs["hist_mask"][sl],
+                                        val_pairs["goal"][sl])  # fmt: skip
+            x = few_step_sample(net, sched, cond, val_pairs["noise"][sl])
+            total += float((x - val_pairs["target"][sl]).pow(2).sum())
+            n += x.numel()
+    return total / n
+
+
+def _train_student(
+    student: Any,
+    opt: Any,
+    sched: Any,
+    train_pairs: dict[str, Any],
+    val_pairs: dict[str, Any],
+    epochs: int,
+    batch_size: int,
+    gen: Any,
+    progress: bool,
+) -> tuple[tuple[float, int, dict[str, Any]], list[dict[str, Any]], float]:
+    """Train the student on the pairs for ``epochs`` epochs (batches drawn by ``gen``),
+    measuring its validation distance before training and after each epoch. Returns the
+    best (distance, epoch, weights), one row per epoch (epoch 0: before training) and the
+    training time (s)."""
+    import torch
+
+    initial = _val_distance(student, sched, val_pairs)
     best = (initial, 0, copy.deepcopy(student.state_dict()))
     history_rows: list[dict[str, Any]] = [{"epoch": 0, "val_distance": initial}]
     n_pairs = train_pairs["noise"].shape[0]
@@ -195,52 +251,27 @@ def distill_policy(
             loss.backward()
             opt.step()
             losses.append(float(loss.detach()))
-        dist = distance(student)
+        dist = _val_distance(student, sched, val_pairs)
         row = {"epoch": epoch, "train_loss": sum(losses) / len(losses), "val_distance": dist}
         history_rows.append(row)
         if progress:
             print(json.dumps(row), flush=True)
         if dist < best[0]:
             best = (dist, epoch, copy.deepcopy(student.state_dict()))
-    seconds = time.perf_counter() - t0
+    return best, history_rows, time.perf_counter() - t0
 
-    student.load_state_dict(best[2])
-    distill = {
-        "teacher": str(Path(policy).resolve()),
-        "teacher_weights": weights,
-        "teacher_objective": m["objective"],
-        "teacher_steps": t_sampler.schedule.steps,
-        "steps": steps,
-        "method": "flow-pair-distillation" if m["objective"] == "flow" else "x0-pair-distillation",
-        "pairs": n_pairs,
-        "val_pairs": int(val_pairs["noise"].shape[0]),
-        "epochs": epochs,
-        "lr": lr,
-        "batch_size": batch_size,
-        "seed": seed,
-        "val_distance_initial": initial,
-        "val_distance": best[0],
-        "selected_epoch": best[1],
-    }
-    config = {
-        "model": model_config(student.config, s_objective, history),
-        "distill": distill,
-        "extra": {
-            **(tcfg.get("extra") or {}),
-            "data": str(Path(dataset).resolve()),
-            "stats": ds.stats.to_json(),
-        },
-    }
-    tensors = {k: v for k, v in student.state_dict().items()}
-    save_weights(tensors, out / "model.safetensors")
-    save_weights(tensors, out / "model.ema.safetensors")
-    with metrics_path.open("w", encoding="utf-8") as f:
+
+def _write_run_files(
+    out: Path, history_rows: list[dict[str, Any]], config: dict[str, Any], config_file: str
+) -> None:
+    """metrics.jsonl (one row per epoch), then the config (atomically: it marks the run
+    directory complete)."""
+    with (out / "metrics.jsonl").open("w", encoding="utf-8") as f:
         for row in history_rows:
             f.write(json.dumps(row) + "\n")
-    tmp = out / (CONFIG_FILE + ".tmp")
+    tmp = out / (config_file + ".tmp")
     tmp.write_text(json.dumps(config, indent=2) + "\n", encoding="utf-8")
-    tmp.replace(out / CONFIG_FILE)
-    return {"out": str(out), "seconds": seconds, "history": history_rows, **distill}
+    tmp.replace(out / config_file)
 
 
 __all__ = ["distill_policy", "few_step_sample"]

@@ -19,12 +19,17 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from rmi_learn.errors import InputError
+from rmi_learn.metrics_log import require_tensorboard
+
+# torch and the modules built on it are imported inside the functions: the pipeline imports
+# this module to describe its training stages on an install without torch.
 
 
-def _subset(n: int, k: int) -> Any:
-    import numpy as np
-
+def _validation_subset(n: int, k: int) -> Any:
+    """Indices of at most ``k`` evenly spaced windows out of ``n``."""
     if n <= k:
         return np.arange(n)
     return np.unique(np.linspace(0, n - 1, k).round().astype(np.int64))
@@ -72,25 +77,14 @@ def train_policy(
     training or validation windows, a world model that does not fit, or an output directory
     that holds a run without ``resume`` (or with other settings).
     """
-    import torch
-
     from rmi_learn.data.dataset import load_dataset
-    from rmi_learn.policies.checkpoint import goal_from_batch, make_objective, model_config
-    from rmi_learn.policies.diffusion import DiffusionObjective
+    from rmi_learn.policies.checkpoint import make_objective, model_config
     from rmi_learn.policies.ema import EMA
-    from rmi_learn.policies.unet import PolicyUNet, UNetConfig
-    from rmi_learn.trainer import TrainConfig, Trainer, TrainState, fetch_batch
+    from rmi_learn.trainer import fetch_batch
 
     if tensorboard:
-        from rmi_learn.metrics_log import require_tensorboard
-
         require_tensorboard()
-
-    try:
-        unet_cfg = UNetConfig(horizon=horizon, channels=channels)
-        model = PolicyUNet(unet_cfg)
-    except ValueError as exc:
-        raise InputError(exc) from exc
+    unet_cfg, model = _build_unet(horizon, channels)
     ds = load_dataset(data)
     train = ds.windows("train", size_cm, history=history, horizon=horizon)
     val = ds.windows("val", size_cm, history=history, horizon=horizon)
@@ -105,32 +99,98 @@ def train_policy(
     obj = make_objective(objective, **kwargs)
     ema = EMA(max_decay=ema_decay)
     n_val = min(val_windows, 64) if debug else val_windows
-    val_batch = fetch_batch(val, _subset(len(val), n_val), device)
-    water_std = float(ds.stats.z_std[0])
+    val_batch = fetch_batch(val, _validation_subset(len(val), n_val), device)
     f_std = float(ds.stats.u_std[0])
+    select = "val_action_mae" if objective == "diffusion" else "val_flow_mse"
+    cfg = _train_config(
+        select,
+        epochs=epochs,
+        batch_size=batch_size,
+        lr=lr,
+        weight_decay=weight_decay,
+        patience=patience,
+        seed=seed,
+        deterministic=deterministic,
+        device=device,
+        debug=debug,
+        max_steps_per_epoch=max_steps_per_epoch,
+        progress=progress,
+    )
+    extra = {
+        "data": str(Path(data).resolve()),
+        "size_cm": size_cm,
+        "train_windows": len(train),
+        "val_windows": len(val),
+        "val_windows_scored": int(val_batch["actions"].shape[0]),
+        "goal": "[g, g - M_L(t)] / std(M_L); g = M_L(t + horizon)",
+        "water_std_kg": float(ds.stats.z_std[0]),
+        "weights_for_sampling": "model.ema.safetensors",
+        "stats": stats,
+    }
+    summary = _fit(
+        model,
+        obj,
+        train,
+        out,
+        cfg,
+        _evaluator(obj, ema, val_batch, seed, f_std),
+        model_config(unet_cfg, obj, history),
+        extra,
+        ema,
+        resume,
+        tensorboard,
+    )
+    if wm is not None:
+        from rmi_learn.policies.policy import attach_world_model
 
-    def batch_loss(
-        net: torch.nn.Module, b: dict[str, Any], gen: torch.Generator | None = None
-    ) -> tuple[Any, dict[str, Any]]:
-        """The objective's loss on a window batch (noise from ``gen`` when given)."""
-        _, goal = goal_from_batch(b)
-        return obj.loss(
-            net,  # type: ignore[arg-type]
-            b["actions"],
-            b["hist"],
-            b["hist_mask"],
-            goal,
-            gen,
-        )
+        summary["world_model"] = str(attach_world_model(out, wm))
+    return summary
 
-    def loss_fn(net: torch.nn.Module, batch: dict[str, Any], state: TrainState) -> Any:
-        return batch_loss(net, batch)[0]
 
-    def evaluate(net: torch.nn.Module, state: TrainState) -> dict[str, float]:
+def _build_unet(horizon: int, channels: tuple[int, ...]) -> tuple[Any, Any]:
+    """The UNet's configuration and the untrained network; InputError for a shape it cannot
+    build."""
+    from rmi_learn.policies.unet import PolicyUNet, UNetConfig
+
+    try:
+        unet_cfg = UNetConfig(horizon=horizon, channels=channels)
+        model = PolicyUNet(unet_cfg)
+    except ValueError as exc:
+        raise InputError(exc) from exc
+    return unet_cfg, model
+
+
+def _batch_loss(
+    obj: Any, net: Any, b: dict[str, Any], gen: Any = None
+) -> tuple[Any, dict[str, Any]]:
+    """The objective's loss on a window batch (noise from ``gen`` when given)."""
+    from rmi_learn.policies.checkpoint import goal_from_batch
+
+    _, goal = goal_from_batch(b)
+    return obj.loss(
+        net,
+        b["actions"],
+        b["hist"],
+        b["hist_mask"],
+        goal,
+        gen,
+    )
+
+
+def _evaluator(obj: Any, ema: Any, val_batch: dict[str, Any], seed: int, f_std: float) -> Any:
+    """The per-epoch validation on ``val_batch`` with fixed noise: the live weights' loss
+    (for diffusion, also the x0 MSE per noise bucket) and the selection metric of the EMA
+    weights (diffusion: sampled action MAE; flow: flow MSE)."""
+    import torch
+
+    from rmi_learn.policies.checkpoint import goal_from_batch
+    from rmi_learn.policies.diffusion import DiffusionObjective
+
+    def evaluate(net: torch.nn.Module, state: Any) -> dict[str, float]:
         b = val_batch
         _, goal = goal_from_batch(b)
         metrics: dict[str, float] = {}
-        live, info = batch_loss(net, b, torch.Generator().manual_seed(seed + 12345))
+        live, info = _batch_loss(obj, net, b, torch.Generator().manual_seed(seed + 12345))
         metrics["val_loss"] = float(live)
         if isinstance(obj, DiffusionObjective):
             buckets = info["t"] // 10
@@ -144,7 +204,7 @@ def train_policy(
             if isinstance(obj, DiffusionObjective):
                 gen = torch.Generator().manual_seed(seed + 54321)
                 sample = obj.sample(
-                    ema_net,  # type: ignore[arg-type]
+                    ema_net,
                     b["hist"],
                     b["hist_mask"],
                     goal,
@@ -154,27 +214,42 @@ def train_policy(
                 metrics["val_action_mae"] = float(err.mean())
                 metrics["val_force_mae_N"] = float(err[..., 0].mean()) * f_std
             else:
-                ema_loss, _ = batch_loss(ema_net, b, torch.Generator().manual_seed(seed + 12345))
+                ema_loss, _ = _batch_loss(
+                    obj, ema_net, b, torch.Generator().manual_seed(seed + 12345)
+                )
                 metrics["val_flow_mse"] = float(ema_loss)
         return metrics
 
-    select = "val_action_mae" if objective == "diffusion" else "val_flow_mse"
-    cfg = TrainConfig(
-        epochs=epochs,
-        batch_size=batch_size,
-        lr=lr,
-        weight_decay=weight_decay,
-        optimizer="adamw",
-        patience=patience,
-        select_metric=select,
-        select_mode="min",
-        seed=seed,
-        deterministic=deterministic,
-        device=device,
-        debug=debug,
-        max_steps_per_epoch=max_steps_per_epoch,
-        progress=progress,
-    )
+    return evaluate
+
+
+def _train_config(select: str, **settings: Any) -> Any:
+    """AdamW settings selecting the checkpoint by the smallest ``select``."""
+    from rmi_learn.trainer import TrainConfig
+
+    return TrainConfig(optimizer="adamw", select_metric=select, select_mode="min", **settings)
+
+
+def _fit(
+    model: Any,
+    obj: Any,
+    train: Any,
+    out: str | Path,
+    cfg: Any,
+    evaluate: Any,
+    model_cfg: dict[str, Any],
+    extra: dict[str, Any],
+    ema: Any,
+    resume: bool,
+    tensorboard: bool,
+) -> dict[str, Any]:
+    """Train with the shared loop and the EMA hook; InputError for an output directory the
+    loop refuses."""
+    from rmi_learn.trainer import Trainer
+
+    def loss_fn(net: Any, batch: dict[str, Any], state: Any) -> Any:
+        return _batch_loss(obj, net, batch)[0]
+
     try:
         trainer = Trainer(
             model,
@@ -183,18 +258,8 @@ def train_policy(
             out,
             cfg,
             evaluate=evaluate,
-            model_config=model_config(unet_cfg, obj, history),
-            extra_config={
-                "data": str(Path(data).resolve()),
-                "size_cm": size_cm,
-                "train_windows": len(train),
-                "val_windows": len(val),
-                "val_windows_scored": int(val_batch["actions"].shape[0]),
-                "goal": "[g, g - M_L(t)] / std(M_L); g = M_L(t + horizon)",
-                "water_std_kg": water_std,
-                "weights_for_sampling": "model.ema.safetensors",
-                "stats": stats,
-            },
+            model_config=model_cfg,
+            extra_config=extra,
             hooks=[ema],
             resume=resume,
             tensorboard=tensorboard,
@@ -202,8 +267,4 @@ def train_policy(
     except ValueError as exc:
         raise InputError(exc) from exc
     summary: dict[str, Any] = trainer.fit()
-    if wm is not None:
-        from rmi_learn.policies.policy import attach_world_model
-
-        summary["world_model"] = str(attach_world_model(out, wm))
     return summary

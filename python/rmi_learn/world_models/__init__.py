@@ -5,7 +5,9 @@ AC-GRU-WM, Linear-ARX, AC-MLP-WM and the causal Transformer W_T, with one interf
 ``build(config)`` makes a model from its JSON config; ``load(out_dir)`` rebuilds a trained
 model from a run directory written by ``rmi train-wm`` (``config.json`` +
 ``model.safetensors``; no pickles) and returns ``(model, config)`` in eval mode. Training
-is :mod:`.training` (``rmi train-wm``), evaluation :mod:`.evaluation` (``rmi eval-wm``).
+is :mod:`.training` (``rmi train-wm``; its settings, which import no torch, are
+:mod:`.training_settings`), evaluation :mod:`.evaluation` (``rmi eval-wm``) at the horizons
+of :mod:`.horizons`.
 """
 
 from __future__ import annotations

@@ -19,19 +19,15 @@ from typing import Any
 import numpy as np
 import torch
 
-from rmi_learn.data.schema import CONTROL_DT, SPONGE_SIZES_CM
+from rmi_learn.data.dataset import Dataset, Stats, load_dataset
+from rmi_learn.data.schema import SPONGE_SIZES_CM
 from rmi_learn.errors import input_errors
-from rmi_learn.world_models.common import FORCE, N_FRIC, N_U, WATER
-
-#: Forecast steps reported in the tables (0.16, 0.32, 0.64, 1.28 s at 20 ms).
-HORIZON_STEPS: tuple[int, ...] = (8, 16, 32, 64)
-#: The step of the main tables (0.64 s).
-MAIN_STEP = 32
-
-
-def horizon_label(step: int) -> str:
-    """'0.64 s' for step 32 at 20 ms."""
-    return f"{step * CONTROL_DT:.2f} s"
+from rmi_learn.trainer import RESUME_FREE, count_parameters
+from rmi_learn.world_models.baseline import BaselineWM, SetpointReadoutWM
+from rmi_learn.world_models.common import FORCE, N_FRIC, N_U, WATER, ShuffledActions
+from rmi_learn.world_models.horizons import HORIZON_STEPS, MAIN_STEP, horizon_label
+from rmi_learn.world_models.registry import DISPLAY_NAMES, load
+from rmi_learn.world_models.training_settings import RESUME_LEGACY
 
 
 def _std(stats: Any, name: str) -> np.ndarray:
@@ -371,6 +367,12 @@ def write_tables(results: list[dict[str, Any]], out_dir: str | Path) -> dict[str
     return paths
 
 
+#: A cell of the tables: (model kind, state groups, shuffled actions, sponge size).
+CellKey = tuple[str, str, bool, int]
+#: A cell's choice: (trained on that size alone, its record, the member models, a config).
+Cell = tuple[bool, dict[str, Any], list[Any], dict[str, Any]]
+
+
 def evaluate_runs(
     runs: Sequence[str | Path],
     data: str | Path,
@@ -395,15 +397,22 @@ def evaluate_runs(
     size when no baseline run is given, and so is the setpoint readout (persistence with
     the measured force read off the chunk's setpoints, built from the dataset's statistics).
     """
-    from rmi_learn.data.dataset import load_dataset
-    from rmi_learn.trainer import count_parameters
-    from rmi_learn.world_models import DISPLAY_NAMES, BaselineWM, SetpointReadoutWM, load
-    from rmi_learn.world_models.common import ShuffledActions
-
     ds = load_dataset(data)
-    stats = ds.stats
     sizes = sorted(int(s) for s in ds.runs["size_cm"].unique().to_list())
-    chosen: dict[tuple[str, str, bool, int], tuple[bool, dict[str, Any], list[Any], Any]] = {}
+    chosen: dict[CellKey, Cell] = {}
+    for model, cfg, run_dir in _entries(runs, ds.stats):
+        _check_stats(cfg, ds.stats, run_dir, data)
+        _add_to_cells(chosen, model, cfg, run_dir, sizes, ds, split, data)
+    results = _evaluate_cells(
+        chosen, ds, split, batch_size, max_windows, device, latency, shuffle_seed
+    )
+    results.sort(key=lambda r: (r["size_cm"], r["kind"], r["state_groups"], r["shuffled"]))
+    return results
+
+
+def _entries(runs: Sequence[str | Path], stats: Stats) -> list[tuple[Any, dict[str, Any], str]]:
+    """(model, config, run directory) of every run, then the Baseline and the setpoint
+    readout unless a run gives them."""
     entries: list[tuple[Any, dict[str, Any], str]] = []
     for run_dir in runs:
         model, cfg = load(run_dir)
@@ -413,61 +422,92 @@ def evaluate_runs(
     if not any(cfg["model"]["kind"] == "setpoint-readout" for _, cfg, _ in entries):
         readout = SetpointReadoutWM.from_stats(stats).eval()
         entries.append((readout, {"model": readout.config(), "extra": {}}, ""))
+    return entries
 
-    for model, cfg, run_dir in entries:
-        extra = cfg.get("extra") or {}
-        trained_stats = extra.get("stats")
-        if trained_stats is not None:
-            same = np.allclose(trained_stats["z_mean"], stats.z_mean) and np.allclose(
-                trained_stats["z_std"], stats.z_std
+
+def _check_stats(cfg: dict[str, Any], stats: Stats, run_dir: str, data: str | Path) -> None:
+    """ValueError when the run was trained with other standardisation statistics than the
+    dataset's."""
+    trained_stats = (cfg.get("extra") or {}).get("stats")
+    if trained_stats is not None:
+        same = np.allclose(trained_stats["z_mean"], stats.z_mean) and np.allclose(
+            trained_stats["z_std"], stats.z_std
+        )
+        if not same:
+            raise ValueError(
+                f"{run_dir} was trained with other standardisation statistics than {data}"
             )
-            if not same:
-                raise ValueError(
-                    f"{run_dir} was trained with other standardisation statistics than {data}"
-                )
-        kind = cfg["model"]["kind"]
-        groups = cfg["model"].get("state_groups", "ALL")
-        shuffled = bool(extra.get("shuffle_actions", False))
-        trained_size = extra.get("size_cm")
-        for s in sizes if trained_size is None else [int(trained_size)]:
-            key = (kind, groups, shuffled, s)
-            specific = trained_size is not None
-            if key in chosen:
-                old_specific, old_rec, members, old_cfg = chosen[key]
-                if old_specific == specific:
-                    if _setting(old_cfg) != _setting(cfg):
-                        raise ValueError(
-                            f"two runs for {key}: {old_rec['run_dir']} and {run_dir} differ "
-                            "in more than the training seed; pass one"
-                        )
-                    if extra.get("seed") in old_rec["seeds"]:
-                        raise ValueError(
-                            f"two runs for {key} with seed {extra.get('seed')}: "
-                            f"{old_rec['run_dir']} and {run_dir}; pass one"
-                        )
-                    old_rec["run_dirs"].append(run_dir)
-                    old_rec["seeds"].append(extra.get("seed"))
-                    members.append(model)
-                    continue
-                if old_specific:
-                    continue
-            rec = {
-                "method": DISPLAY_NAMES[kind] + (", shuffled A" if shuffled else ""),
-                "kind": kind,
-                "state_groups": groups,
-                "shuffled": shuffled,
-                "size_cm": s,
-                "trained_size_cm": trained_size,
-                "run_dir": run_dir,
-                "run_dirs": [run_dir],
-                "seeds": [extra.get("seed")],
-                "split": split,
-                "data": str(data),
-                "split_seed": ds.info.get("seed"),
-                "params": count_parameters(model),
-            }
-            chosen[key] = (specific, rec, [model], cfg)
 
+
+def _add_to_cells(
+    chosen: dict[CellKey, Cell],
+    model: Any,
+    cfg: dict[str, Any],
+    run_dir: str,
+    sizes: Sequence[int],
+    ds: Dataset,
+    split: str,
+    data: str | Path,
+) -> None:
+    """Enter the run in the cells of the sizes it predicts: a new cell, a replicate of an
+    equally specific run (another seed), or nothing when a more specific run holds it."""
+    extra = cfg.get("extra") or {}
+    kind = cfg["model"]["kind"]
+    groups = cfg["model"].get("state_groups", "ALL")
+    shuffled = bool(extra.get("shuffle_actions", False))
+    trained_size = extra.get("size_cm")
+    for s in sizes if trained_size is None else [int(trained_size)]:
+        key = (kind, groups, shuffled, s)
+        specific = trained_size is not None
+        if key in chosen:
+            old_specific, old_rec, members, old_cfg = chosen[key]
+            if old_specific == specific:
+                if _setting(old_cfg) != _setting(cfg):
+                    raise ValueError(
+                        f"two runs for {key}: {old_rec['run_dir']} and {run_dir} differ "
+                        "in more than the training seed; pass one"
+                    )
+                if extra.get("seed") in old_rec["seeds"]:
+                    raise ValueError(
+                        f"two runs for {key} with seed {extra.get('seed')}: "
+                        f"{old_rec['run_dir']} and {run_dir}; pass one"
+                    )
+                old_rec["run_dirs"].append(run_dir)
+                old_rec["seeds"].append(extra.get("seed"))
+                members.append(model)
+                continue
+            if old_specific:
+                continue
+        rec = {
+            "method": DISPLAY_NAMES[kind] + (", shuffled A" if shuffled else ""),
+            "kind": kind,
+            "state_groups": groups,
+            "shuffled": shuffled,
+            "size_cm": s,
+            "trained_size_cm": trained_size,
+            "run_dir": run_dir,
+            "run_dirs": [run_dir],
+            "seeds": [extra.get("seed")],
+            "split": split,
+            "data": str(data),
+            "split_seed": ds.info.get("seed"),
+            "params": count_parameters(model),
+        }
+        chosen[key] = (specific, rec, [model], cfg)
+
+
+def _evaluate_cells(
+    chosen: dict[CellKey, Cell],
+    ds: Dataset,
+    split: str,
+    batch_size: int,
+    max_windows: int | None,
+    device: str,
+    latency: bool,
+    shuffle_seed: int,
+) -> list[dict[str, Any]]:
+    """The records of the cells with windows of ``split``, each with the mean metrics of
+    its member runs (and theirs per seed) and, on the CPU, the first member's latency."""
     results = []
     latency_cache: dict[int, float] = {}
     for (_, _, shuffled, s), (_, rec, members, _) in chosen.items():
@@ -483,7 +523,7 @@ def evaluate_runs(
                 evaluate_rollouts(
                     model,
                     ws,
-                    stats.z_std,
+                    ds.stats.z_std,
                     batch_size=batch_size,
                     max_windows=max_windows,
                     device=device,
@@ -498,7 +538,6 @@ def evaluate_runs(
                 latency_cache[id(model)] = benchmark_latency(model)
             rec["latency_ms_8x32"] = latency_cache[id(model)]
         results.append(rec)
-    results.sort(key=lambda r: (r["size_cm"], r["kind"], r["state_groups"], r["shuffled"]))
     return results
 
 
@@ -506,9 +545,6 @@ def _setting(cfg: dict[str, Any]) -> dict[str, Any]:
     """What a run's config says of its model and training, less the seed (and the dataset
     path: the standardisation statistics are checked against the dataset instead; and the
     loss's channel scale, measured on the training windows, which a debug run draws by seed)."""
-    from rmi_learn.trainer import RESUME_FREE
-    from rmi_learn.world_models.training import RESUME_LEGACY
-
     train = {k: v for k, v in (cfg.get("train") or {}).items() if k not in RESUME_FREE}
     train.pop("seed", None)
     extra = {**RESUME_LEGACY, **(cfg.get("extra") or {})}

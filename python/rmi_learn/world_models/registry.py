@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from rmi_learn.errors import InputError
+from rmi_learn.trainer import CONFIG_FILE, load_weights, read_config
 from rmi_learn.world_models.arx import LinearARX
 from rmi_learn.world_models.baseline import BaselineWM, SetpointReadoutWM
 from rmi_learn.world_models.common import WorldModel
@@ -34,6 +36,7 @@ DISPLAY_NAMES: dict[str, str] = {
     "transformer": "Transformer W_T",
 }
 
+
 def build(config: dict[str, Any]) -> WorldModel:
     """A fresh model from ``{"kind": ..., **constructor arguments}``."""
     cfg = dict(config)
@@ -52,9 +55,6 @@ def load(out_dir: str | Path, which: str = "model") -> tuple[WorldModel, dict[st
     it was trained on: z_mean, z_std (18, SI units), u_mean, u_std (2,)). Inputs to the model
     are standardised exactly like ``rmi_learn.data.dataset`` windows.
     """
-    from rmi_learn.errors import InputError
-    from rmi_learn.trainer import CONFIG_FILE, load_weights, read_config
-
     config = read_config(out_dir)
     try:
         model = build(config["model"])

@@ -15,72 +15,40 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
+from rmi_learn.data.schema import HORIZON
 from rmi_learn.errors import input_errors
-
-MODEL_CHOICES = ("baseline", "state-gru", "ac-gru", "arx", "ac-mlp", "transformer")
-GROUP_CHOICES = ("LS", "LS+G", "LS+G+C", "ALL")
-
-#: Optimisation defaults of the GRU and MLP models (paper Sec. IV, supplement S3), with the
-#: change-scaled loss (see ``--loss-scale``).
-_GRU_MLP_DEFAULTS: dict[str, Any] = {
-    "lr": 1e-3,
-    "optimizer": "adam",
-    "select": "val_water_mae_g@64",
-    "loss_scale": "change",
-}
-def select_metric(metric: str, horizon: int) -> str:
-    """The validation metric that selects the weights for windows of ``horizon`` steps: a
-    water error at step 64 becomes the one at the largest reported step within the horizon
-    (a 32-step lookahead model is chosen at 0.64 s)."""
-    from rmi_learn.world_models.evaluation import HORIZON_STEPS
-
-    if not metric.startswith("val_water_mae_g@"):
-        return metric
-    step = max((s for s in HORIZON_STEPS if s <= horizon), default=HORIZON_STEPS[0])
-    return f"val_water_mae_g@{step}"
-
-
-#: Per-model optimisation defaults (paper Sec. IV, supplement S3).
-DEFAULTS: dict[str, dict[str, Any]] = {
-    "state-gru": _GRU_MLP_DEFAULTS,
-    "ac-gru": _GRU_MLP_DEFAULTS,
-    "ac-mlp": _GRU_MLP_DEFAULTS,
-    "transformer": {
-        "lr": 3e-4,
-        "optimizer": "adamw",
-        "weight_decay": 1e-2,
-        "select": "val_water_mae_g_mean",
-        "water_weight": 8.0,
-    },
-}
-#: Settings of a run that ``--resume`` must repeat (they shape the data or the loss).
-RESUME_FIXED = (
-    "size_cm",
-    "state_groups",
-    "shuffle_actions",
-    "debug",
-    "tf_epochs",
-    "water_weight",
-    "huber_delta",
-    "loss_scale",
-    "horizon",
+from rmi_learn.metrics_log import (
+    METRICS_FILE,
+    TENSORBOARD_DIR,
+    TensorBoardLog,
+    require_tensorboard,
 )
-#: Huber threshold of the loss in standardised units (torch's default).
-HUBER_DELTA = 1.0
-#: Values of those settings in runs written before they were recorded.
-RESUME_LEGACY: dict[str, Any] = {"huber_delta": HUBER_DELTA, "loss_scale": "state", "horizon": 64}
-#: How the continuous channels' errors are scaled in the loss (see ``--loss-scale``).
-LOSS_SCALES = ("state", "change")
-#: Debug mode: windows kept from each split, batch size, teacher-forcing decay epochs.
-DEBUG_TRAIN_WINDOWS = 256
-DEBUG_VAL_WINDOWS = 32
+from rmi_learn.world_models.training_settings import (
+    DEBUG_TRAIN_WINDOWS,
+    DEBUG_VAL_WINDOWS,
+    DEFAULTS,
+    HUBER_DELTA,
+    LOSS_SCALES,
+    MODEL_CHOICES,
+    RESUME_FIXED,
+    RESUME_LEGACY,
+    select_metric,
+)
+
+if TYPE_CHECKING:
+    from rmi_learn.data.dataset import Dataset
+
+# torch, and the modules that import it (the data set tries to), are imported inside the
+# functions: the pipeline imports this module to describe its training stages on an install
+# without torch.
 
 
-def _subset(ws: Any, n: int, seed: int) -> Any:
-    import numpy as np
-
+def debug_subset(ws: Any, n: int, seed: int) -> Any:
+    """At most ``n`` windows of ``ws``, drawn by ``seed`` (debug mode)."""
     from rmi_learn.world_models.common import Subset
 
     if len(ws) <= n:
@@ -145,33 +113,85 @@ def train(
     training windows, a resume with other settings) raise
     :class:`~rmi_learn.errors.InputError`.
     """
-    import torch
-
     from rmi_learn.data.dataset import load_dataset
-    from rmi_learn.data.schema import HORIZON
-    from rmi_learn.trainer import TrainConfig, Trainer, count_parameters, seed_everything
-    from rmi_learn.world_models import build
-    from rmi_learn.world_models.common import N_Z, WATER, ShuffledActions, change_scale, wm_loss
-    from rmi_learn.world_models.evaluation import evaluate_rollouts
+    from rmi_learn.trainer import seed_everything
 
+    _check_request(model, state_groups, loss_scale, tensorboard)
+    out = Path(out)
+    ds = load_dataset(data)
+    stats = ds.stats
+    seed_everything(seed, deterministic)
+    net = _build_model(model, state_groups, model_args)
+    horizon = _window_horizon(net, model, horizon)
+    train_ws, val_ws = _window_sets(ds, data, size_cm, horizon, shuffle_actions, debug, seed)
+    if debug:
+        tf_epochs = 1
+        batch_size = min(batch_size, 8)
+    extra = _extra_config(
+        data, size_cm, state_groups, shuffle_actions, seed, debug, ds, train_ws, val_ws
+    )
+    if not net.trainable:
+        validate = _validation(val_ws, stats.z_std, horizon, val_windows, device, None)
+        return _closed_form(net, model, out, train_ws, validate, extra, resume, tensorboard)
+    d = DEFAULTS[model]
+    extra["tf_epochs"] = tf_epochs
+    if water_weight is None:
+        water_weight = float(d.get("water_weight", 1.0))
+    extra["water_weight"] = water_weight
+    extra["huber_delta"] = huber_delta
+    if loss_scale is None:
+        loss_scale = str(d.get("loss_scale", "state"))
+    extra["loss_scale"] = loss_scale
+    loss_fn, rollout_loss = _losses(net, train_ws, extra, tf_epochs)
+    validate = _validation(val_ws, stats.z_std, horizon, val_windows, device, rollout_loss)
+    cfg = _train_config(
+        net,
+        d,
+        horizon=horizon,
+        epochs=epochs,
+        batch_size=batch_size,
+        steps_per_epoch=steps_per_epoch,
+        lr=lr,
+        patience=patience,
+        tf_epochs=tf_epochs,
+        seed=seed,
+        deterministic=deterministic,
+        device=device,
+        debug=debug,
+        progress=progress,
+    )
+    return _fit(net, loss_fn, train_ws, out, cfg, validate, extra, resume, tensorboard)
+
+
+def _check_request(
+    model: str, state_groups: str, loss_scale: str | None, tensorboard: bool
+) -> None:
+    """Refuse an unknown model or loss scale and state groups for a model without them
+    (ValueError); check that TensorBoard is installed when asked for."""
     if model not in MODEL_CHOICES:
         raise ValueError(f"unknown model {model!r}")
     if tensorboard:
-        from rmi_learn.metrics_log import require_tensorboard
-
         require_tensorboard()
     if loss_scale is not None and loss_scale not in LOSS_SCALES:
         raise ValueError(f"loss_scale must be one of {list(LOSS_SCALES)}, got {loss_scale!r}")
     if model in ("baseline", "arx") and state_groups != "ALL":
         raise ValueError(f"--state-groups applies to learned models, not {model}")
-    out = Path(out)
-    ds = load_dataset(data)
-    stats = ds.stats
-    seed_everything(seed, deterministic)
+
+
+def _build_model(model: str, state_groups: str, model_args: dict[str, Any] | None) -> Any:
+    """The untrained network of ``model`` with ``model_args`` and, for a learned model, its
+    state groups."""
+    from rmi_learn.world_models import build
+
     kw: dict[str, Any] = {"kind": model, **(model_args or {})}
     if model != "baseline" and model != "arx":
         kw["state_groups"] = state_groups
-    net = build(kw)
+    return build(kw)
+
+
+def _window_horizon(net: Any, model: str, horizon: int | None) -> int:
+    """The forecast length of the windows: ``horizon``, else the model's fixed horizon,
+    else the dataset default; ValueError when it contradicts a fixed horizon."""
     # A lookahead model of a fixed horizon (e.g. --model-arg horizon=32, to score the
     # policies' chunks) learns from windows of that horizon.
     fixed = getattr(net, "fixed_horizon", None)
@@ -182,6 +202,22 @@ def train(
             f"horizon {horizon}: must be >= 1"
             + (f" and equal the {model} model's fixed horizon {fixed}" if fixed else "")
         )
+    return horizon
+
+
+def _window_sets(
+    ds: Dataset,
+    data: str | Path,
+    size_cm: int | None,
+    horizon: int,
+    shuffle_actions: bool,
+    debug: bool,
+    seed: int,
+) -> tuple[Any, Any]:
+    """The training and validation windows: with ``shuffle_actions`` each history paired
+    with another run's chunk, in debug mode a small subset of each."""
+    from rmi_learn.world_models.common import ShuffledActions
+
     train_ws: Any = ds.windows("train", size_cm=size_cm, horizon=horizon)
     val_ws: Any = ds.windows("val", size_cm=size_cm, horizon=horizon)
     if len(train_ws) == 0:
@@ -190,13 +226,24 @@ def train(
         train_ws = ShuffledActions(train_ws, seed=seed)
         val_ws = ShuffledActions(val_ws, seed=seed + 1)
     if debug:
-        train_ws = _subset(train_ws, DEBUG_TRAIN_WINDOWS, seed)
-        val_ws = _subset(val_ws, DEBUG_VAL_WINDOWS, seed)
-        tf_epochs = 1
-        batch_size = min(batch_size, 8)
-    z_std = stats.z_std
+        train_ws = debug_subset(train_ws, DEBUG_TRAIN_WINDOWS, seed)
+        val_ws = debug_subset(val_ws, DEBUG_VAL_WINDOWS, seed)
+    return train_ws, val_ws
 
-    extra: dict[str, Any] = {
+
+def _extra_config(
+    data: str | Path,
+    size_cm: int | None,
+    state_groups: str,
+    shuffle_actions: bool,
+    seed: int,
+    debug: bool,
+    ds: Dataset,
+    train_ws: Any,
+    val_ws: Any,
+) -> dict[str, Any]:
+    """What config.json records of the data beside the model and optimiser settings."""
+    return {
         "data": str(Path(data).resolve()),
         "size_cm": size_cm,
         "state_groups": state_groups,
@@ -207,61 +254,46 @@ def train(
         "horizon": train_ws.horizon if hasattr(train_ws, "horizon") else None,
         "n_train": len(train_ws),
         "n_val": len(val_ws),
-        "stats": stats.to_json(),
+        "stats": ds.stats.to_json(),
     }
 
-    val_loss: Any = None  # the training loss on validation rollouts, once it is defined
 
-    def validate(m: torch.nn.Module, state: Any = None) -> dict[str, float]:
+def _validation(
+    val_ws: Any, z_std: Any, horizon: int, val_windows: int | None, device: str, loss: Any
+) -> Any:
+    """The per-epoch validation: free-rollout metrics of the validation windows (with
+    ``loss``, also the training loss on those rollouts), prefixed ``val_``."""
+    from rmi_learn.world_models.evaluation import evaluate_rollouts
+
+    def validate(m: Any, state: Any = None) -> dict[str, float]:
         if len(val_ws) == 0:
-            return {select_metric("val_water_mae_g@64", horizon): float("nan"),
-                    "val_water_mae_g_mean": float("nan")}
-        r = evaluate_rollouts(
-            m, val_ws, z_std, max_windows=val_windows, device=device, loss=val_loss
-        )
+            return {
+                select_metric("val_water_mae_g@64", horizon): float("nan"),
+                "val_water_mae_g_mean": float("nan"),
+            }
+        r = evaluate_rollouts(m, val_ws, z_std, max_windows=val_windows, device=device, loss=loss)
         return {f"val_{k}": v for k, v in r.items()}
 
-    if not net.trainable:
-        return _closed_form(net, model, out, train_ws, validate, extra, resume, tensorboard)
+    return validate
 
-    d = DEFAULTS[model]
-    extra["tf_epochs"] = tf_epochs
-    if water_weight is None:
-        water_weight = float(d.get("water_weight", 1.0))
-    extra["water_weight"] = water_weight
-    extra["huber_delta"] = huber_delta
-    if loss_scale is None:
-        loss_scale = str(d.get("loss_scale", "state"))
-    extra["loss_scale"] = loss_scale
+
+def _losses(net: Any, train_ws: Any, extra: dict[str, Any], tf_epochs: int) -> tuple[Any, Any]:
+    """The training loss (with teacher forcing decaying over ``tf_epochs`` for recurrent
+    models) and the same loss of free rollouts, weighted and scaled as ``extra`` says; a
+    change scale is measured on ``train_ws`` and recorded in ``extra``."""
+    import torch
+
+    from rmi_learn.world_models.common import N_Z, WATER, change_scale, wm_loss
+
+    huber_delta = extra["huber_delta"]
     cw = torch.ones(N_Z)
-    cw[WATER] = water_weight
+    cw[WATER] = extra["water_weight"]
     scale = None
-    if loss_scale == "change":
+    if extra["loss_scale"] == "change":
         # Targets and histories do not depend on the pairing of chunks, so shuffled and
         # debug subsets give the scale of the windows they train on.
         scale = change_scale(train_ws)
         extra["channel_scale"] = [float(v) for v in scale]
-    cfg = TrainConfig(
-        epochs=epochs,
-        batch_size=batch_size,
-        max_steps_per_epoch=steps_per_epoch,
-        lr=lr if lr is not None else d["lr"],
-        optimizer=d["optimizer"],
-        weight_decay=d.get("weight_decay", 0.0),
-        grad_clip=1.0,
-        patience=patience,
-        # Early stopping and selection wait for the end of the teacher-forcing decay: before
-        # it, the free-rollout validation metric judges a model still trained on fed targets.
-        min_epochs=tf_epochs if net.recurrent else 0,
-        select_after=tf_epochs if net.recurrent else 0,
-        select_metric=select_metric(d["select"], horizon),
-        select_mode="min",
-        seed=seed,
-        deterministic=deterministic,
-        device=device,
-        debug=debug,
-        progress=progress,
-    )
 
     def loss_fn(m: Any, batch: dict[str, torch.Tensor], state: Any) -> Any:
         tf = max(0.0, 1.0 - state.epoch / tf_epochs) if (m.recurrent and tf_epochs > 0) else 0.0
@@ -291,7 +323,65 @@ def train(
     def rollout_loss(o: dict[str, torch.Tensor], batch: dict[str, torch.Tensor]) -> Any:
         return weighted_loss(net, o, batch)[0]
 
-    val_loss = rollout_loss
+    return loss_fn, rollout_loss
+
+
+def _train_config(
+    net: Any,
+    d: dict[str, Any],
+    *,
+    horizon: int,
+    epochs: int,
+    batch_size: int,
+    steps_per_epoch: int | None,
+    lr: float | None,
+    patience: int | None,
+    tf_epochs: int,
+    seed: int,
+    deterministic: bool,
+    device: str,
+    debug: bool,
+    progress: bool,
+) -> Any:
+    """The optimisation settings of a gradient-trained model (``d``: its defaults)."""
+    from rmi_learn.trainer import TrainConfig
+
+    return TrainConfig(
+        epochs=epochs,
+        batch_size=batch_size,
+        max_steps_per_epoch=steps_per_epoch,
+        lr=lr if lr is not None else d["lr"],
+        optimizer=d["optimizer"],
+        weight_decay=d.get("weight_decay", 0.0),
+        grad_clip=1.0,
+        patience=patience,
+        # Early stopping and selection wait for the end of the teacher-forcing decay: before
+        # it, the free-rollout validation metric judges a model still trained on fed targets.
+        min_epochs=tf_epochs if net.recurrent else 0,
+        select_after=tf_epochs if net.recurrent else 0,
+        select_metric=select_metric(d["select"], horizon),
+        select_mode="min",
+        seed=seed,
+        deterministic=deterministic,
+        device=device,
+        debug=debug,
+        progress=progress,
+    )
+
+
+def _fit(
+    net: Any,
+    loss_fn: Any,
+    train_ws: Any,
+    out: Path,
+    cfg: Any,
+    validate: Any,
+    extra: dict[str, Any],
+    resume: bool,
+    tensorboard: bool,
+) -> dict[str, Any]:
+    """Train with the shared loop; the summary gains the parameter count and wall time."""
+    from rmi_learn.trainer import Trainer, count_parameters
 
     trainer = Trainer(
         net,
@@ -326,14 +416,7 @@ def _closed_form(
 ) -> dict[str, Any]:
     """Baseline (nothing to fit) and Linear-ARX (ridge): same run-directory layout, one
     ``epoch`` line of validation metrics (no training loss)."""
-    from rmi_learn.metrics_log import METRICS_FILE, TENSORBOARD_DIR, TensorBoardLog
-    from rmi_learn.trainer import (
-        BEST_WEIGHTS,
-        CONFIG_FILE,
-        SUMMARY_FILE,
-        _write_json,
-        save_weights,
-    )
+    from rmi_learn.trainer import BEST_WEIGHTS, CONFIG_FILE, SUMMARY_FILE, save_weights, write_json
 
     if (out / CONFIG_FILE).exists():
         if not resume:
@@ -348,7 +431,7 @@ def _closed_form(
     t0 = time.perf_counter()
     if model == "arx":
         extra["n_fit"] = net.fit(train_ws)
-    _write_json(
+    write_json(
         out / CONFIG_FILE,
         {
             "model": net.config(),
@@ -379,5 +462,5 @@ def _closed_form(
         "params": 0,
         "wall_s": fit_s,
     }
-    _write_json(out / SUMMARY_FILE, summary)
+    write_json(out / SUMMARY_FILE, summary)
     return summary

@@ -1,5 +1,5 @@
 """The report of a pipeline directory (``rmi report``): sections of stages that have not
-run, our numbers beside the paper's, the training curves, HTML escaping."""
+run, our numbers beside the paper's, the training curves, the embedded figures."""
 
 from __future__ import annotations
 
@@ -11,7 +11,8 @@ from pathlib import Path
 from typing import Any
 
 from rmi_learn import cli
-from rmi_learn.analysis.report import Doc, training_figure, training_runs, write_report
+from rmi_learn.analysis.report import training_figure, training_runs, write_report
+from rmi_learn.analysis.report.policies import closed_loop_means
 from rmi_learn.metrics_log import loss_curves
 
 
@@ -51,10 +52,8 @@ def test_report_puts_our_numbers_beside_the_papers(tmp_path: Path) -> None:
     assert "| paper: Original controller action | 2.56 | 4.23 | 4.68 |" in text
     assert "| paper: Flow matching + W_T | 1.11 | 2.24 | 2.45 |" in text
     assert "| 8 cm | 4.00 | 2.00 |" in text and "Replay fidelity: fine." in text
-    from rmi_learn.analysis.report import _closed_loop_means
-
     cl = json.loads((tmp_path / "closed_loop" / "table_closed_loop.json").read_text())
-    assert _closed_loop_means(cl) == {
+    assert closed_loop_means(cl) == {
         "Original controller action": {"8": 0.5},
         "Flow matching + W_T": {"8": 2.0},
     }
@@ -77,15 +76,6 @@ def test_report_shows_the_goal_reaching_benchmark_when_it_ran(tmp_path: Path) ->
     assert "Goal-reaching control" in text and "| refined-arx-32/flow | 4 | 1.25 |" in text
     assert "figures/fig_control.png" in text and "fig_control_scorers" not in text
     assert (tmp_path / "report" / "figures" / "fig_control.png").exists()
-
-
-def test_doc_escapes_html() -> None:
-    d = Doc()
-    d.h(1, "t")
-    d.p("a <b> & `x<y`")
-    d.table(["h"], [["<i>"]])
-    page = d.html("t")
-    assert "a &lt;b&gt; &amp; <code>x&lt;y</code>" in page and "<td>&lt;i&gt;</td>" in page
 
 
 def png_size(path: Path) -> tuple[int, int]:
@@ -150,10 +140,3 @@ def test_report_html_embeds_its_figures(tmp_path: Path) -> None:
     assert png in embedded
     # The Markdown report keeps linking the figure files beside it.
     assert "](figures/fig_ranking.png)" in md.read_text()
-
-
-def test_doc_links_figures_when_not_embedding() -> None:
-    d = Doc()
-    d.h(1, "t")
-    d.img("figures/a.png", "a")
-    assert '<img src="figures/a.png"' in d.html("t")
