@@ -586,6 +586,10 @@ impl Trial {
         if layer.memory.particles() != snap.particles.n_solid() {
             return Err(RmiError::State("trial state: contact memory does not match the particles".into()));
         }
+        layer.memory.check(snap.bodies.len(), snap.particles.n_fluid).map_err(|e| match e {
+            RmiError::State(m) => RmiError::State(format!("trial state: {m}")),
+            other => other,
+        })?;
         t.sim.restore(snap)?;
         t.sim.update_fields();
         t.layer = layer;

@@ -1,7 +1,7 @@
 //! Reliability under bad input and failures: a diverged step rolls back everything, saved
-//! states are checksummed and fit their config, saves never share a temporary file or
-//! replace something that is not a regular file, reads are bounded, scenes that do not fit in
-//! memory are refused.
+//! states are checksummed and fit their config, hand-made states with a valid checksum are
+//! checked value by value, saves never share a temporary file or replace something that is
+//! not a regular file, reads are bounded, scenes that do not fit in memory are refused.
 
 mod common;
 use common::*;
@@ -87,6 +87,82 @@ fn a_snapshot_spliced_from_another_scene_is_refused() {
     let n = bytes.len();
     bytes[n / 2] ^= 0xff;
     assert!(matches!(Snapshot::from_bytes(&bytes), Err(RmiError::State(m)) if m.contains("checksum")));
+}
+
+/// The state error of `snap` sealed as the writer seals it and read back, and of the same
+/// snapshot restored directly; both paths must refuse it with the same message.
+fn refusal(snap: &Snapshot) -> String {
+    let read = match Snapshot::from_bytes(&snap.to_bytes()) {
+        Err(RmiError::State(m)) => m,
+        r => panic!("expected a state error from the bytes, got {:?}", r.map(|_| ())),
+    };
+    match Simulation::from_snapshot(snap.clone(), Some(1)) {
+        Err(RmiError::State(m)) => assert_eq!(m, read, "restoring and reading refuse differently"),
+        r => panic!("expected a state error from the restore, got {:?}", r.map(|_| ())),
+    }
+    read
+}
+
+#[test]
+fn hand_made_snapshots_with_bad_masses_are_refused() {
+    let mut sim = Simulation::new(diverging_sponge(), Some(1)).unwrap();
+    run(&mut sim, 2);
+    let good = sim.snapshot();
+    let (nf, n) = (good.particles.n_fluid, good.particles.len());
+    assert!(nf > 3 && n > nf + 1, "{nf} fluid of {n} particles");
+    let d = good.config.spacing();
+    let range = format!("[{}, {}] kg", d * d * d, 1e5 * (d * d * d));
+    for (a, mass) in [(3, f64::NAN), (3, 0.0), (n - 1, -1.0), (nf, f64::INFINITY), (3, 2e5 * d * d * d)] {
+        let mut s = good.clone();
+        s.particles.mass[a] = mass;
+        let m = refusal(&s);
+        assert!(m.starts_with(&format!("snapshot particle {a}: `mass` = {mass} kg")), "{m}");
+        assert!(m.contains(&range), "{m}");
+    }
+    // The untouched snapshot still continues.
+    let mut again = Simulation::from_snapshot(Snapshot::from_bytes(&good.to_bytes()).unwrap(), Some(1)).unwrap();
+    run(&mut again, 1);
+}
+
+/// A change to a snapshot.
+type Edit<'a> = dyn Fn(&mut Snapshot) + 'a;
+
+#[test]
+fn hand_made_snapshots_with_bad_ids_or_non_finite_values_are_refused() {
+    let mut sim = Simulation::new(diverging_sponge(), Some(1)).unwrap();
+    run(&mut sim, 2);
+    let good = sim.snapshot();
+    let (nf, n) = (good.particles.n_fluid, good.particles.len());
+    let stretched = nalgebra::Unit::new_unchecked(nalgebra::Quaternion::new(2.0, 0.0, 0.0, 0.0));
+    let cases: Vec<(Box<Edit<'_>>, String)> = vec![
+        (Box::new(|s| s.particles.id[5] = s.particles.id[4]), "snapshot particle 5: `id` = ".into()),
+        (Box::new(|s| s.particles.id[2] = n as u32), format!("snapshot particle 2: `id` = {n} ")),
+        (Box::new(|s| s.particles.x[7].y = f64::NAN), "snapshot particle 7: `x` = [".into()),
+        (Box::new(|s| s.particles.v[1].z = f64::INFINITY), "snapshot particle 1: `v` = [".into()),
+        (Box::new(|s| s.dv_prev[4].x = f64::NAN), "snapshot particle 4: `dv_prev` = [".into()),
+        (Box::new(|s| s.rest_positions[2].x = f64::NAN), format!("snapshot particle {}: `rest_positions` = [", nf + 2)),
+        (Box::new(|s| s.kappa_dt2[6] = f64::NAN), "snapshot particle 6: `kappa_dt2` = NaN".into()),
+        (Box::new(|s| s.contact_load[0] = -1.0), format!("snapshot particle {nf}: `contact_load` = -1 N")),
+        (Box::new(|s| s.contact_load[1] = f64::NAN), format!("snapshot particle {}: `contact_load` = NaN N", nf + 1)),
+        (Box::new(move |s| s.solid.rotation[1] = stretched), format!("snapshot particle {}: `rotation` = [", nf + 1)),
+        (
+            Box::new(|s| s.boundary_velocities[3].x = f64::NAN),
+            "snapshot boundary particle 3: `boundary_velocities` = [".into(),
+        ),
+        (Box::new(|s| s.bodies[0].velocity.x = f64::NAN), "snapshot body 0: `velocity` = [".into()),
+        (Box::new(move |s| s.bodies[0].rotation = stretched), "snapshot body 0: `rotation` = [".into()),
+        (Box::new(|s| s.time = f64::NAN), "snapshot: `time` = NaN".into()),
+    ];
+    for (edit, start) in cases {
+        let mut s = good.clone();
+        edit(&mut s);
+        let m = refusal(&s);
+        assert!(m.starts_with(&start) && m.contains("is not accepted; expected"), "{start}: {m}");
+    }
+    let mut s = good.clone();
+    s.particles.id[5] = s.particles.id[4];
+    let m = refusal(&s);
+    assert!(m.contains(&format!("[0, {n})")) && m.contains("particle 4 holds it"), "{m}");
 }
 
 #[test]

@@ -4,6 +4,10 @@
 use super::{memory_limit, PorousMaterial, Shape, SimConfig};
 use crate::error::{Result, RmiError};
 
+/// Accepted densities (kg/m^3) of the water and of a skeleton's dry material; a particle's
+/// mass is its density times the spacing cubed, so these bound the masses of a snapshot too.
+pub const DENSITY_RANGE: [f64; 2] = [1.0, 1e5];
+
 /// Range check helper: `lo <= v <= hi`, finite.
 fn range(field: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<()> {
     if v.is_finite() && v >= lo && v <= hi {
@@ -54,7 +58,7 @@ impl PorousMaterial {
     /// Validates every field; `p` is the dotted path used in error messages.
     pub fn validate(&self, p: &str) -> Result<()> {
         open(&format!("{p}.porosity"), self.porosity, 0.0, 1.0, "(dimensionless)")?;
-        range(&format!("{p}.dry_density"), self.dry_density, 1.0, 1e5, "kg/m^3")?;
+        range(&format!("{p}.dry_density"), self.dry_density, DENSITY_RANGE[0], DENSITY_RANGE[1], "kg/m^3")?;
         range(&format!("{p}.youngs_modulus"), self.youngs_modulus, 0.0, 1e10, "Pa")?;
         range(&format!("{p}.poisson_ratio"), self.poisson_ratio, 0.0, 0.49, "(dimensionless)")?;
         range(&format!("{p}.permeability"), self.permeability, 0.0, 1e-3, "m^2")?;
@@ -77,7 +81,7 @@ impl SimConfig {
         range("dt", self.dt, 1e-6, 0.01, "s")?;
         vec3("gravity", &self.gravity, 1e3, "m/s^2")?;
         let f = &self.fluid;
-        range("fluid.density", f.density, 1.0, 1e5, "kg/m^3")?;
+        range("fluid.density", f.density, DENSITY_RANGE[0], DENSITY_RANGE[1], "kg/m^3")?;
         range("fluid.viscosity", f.viscosity, 0.0, 100.0, "m^2/s")?;
         range("fluid.boundary_viscosity", f.boundary_viscosity, 0.0, 100.0, "m^2/s")?;
         range("fluid.darcy_viscosity", f.darcy_viscosity, 1e-6, 10.0, "Pa s")?;

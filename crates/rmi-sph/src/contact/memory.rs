@@ -3,6 +3,7 @@
 //! others, the reactions on the bodies).
 
 use super::{coulomb, ContactStage, FrictionForce, FrictionParams, Stick};
+use crate::error::{Result, RmiError};
 use crate::world::boundary::{BodyState, Boundary};
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
@@ -65,6 +66,31 @@ impl ContactMemory {
     /// The anchor of solid particle `s` on `body`, if it sticks there.
     pub fn anchor(&self, s: usize, body: u16) -> Option<&Anchor> {
         self.anchors.get(s)?.iter().find(|a| a.body == body)
+    }
+
+    /// Refuses a memory read from a saved state whose anchors a step could not use: a body
+    /// index outside the `bodies` bodies, a second anchor on one body, or a non-finite
+    /// point; `n_fluid` offsets solid indices to the particle indices the error names.
+    pub fn check(&self, bodies: usize, n_fluid: usize) -> Result<()> {
+        for (s, slot) in self.anchors.iter().enumerate() {
+            for (k, a) in slot.iter().enumerate() {
+                let at = |field: &str, value: String, expected: String| {
+                    RmiError::State(format!(
+                        "contact memory of particle {}: anchor `{field}` = {value} is not accepted; expected {expected}",
+                        n_fluid + s
+                    ))
+                };
+                if usize::from(a.body) >= bodies || slot[..k].iter().any(|b| b.body == a.body) {
+                    let expected = format!("a body index in [0, {bodies}) that no other anchor of the particle holds");
+                    return Err(at("body", a.body.to_string(), expected));
+                }
+                if !a.local.iter().all(|c| c.is_finite()) {
+                    let value = format!("[{}, {}, {}]", a.local[0], a.local[1], a.local[2]);
+                    return Err(at("local", value, "finite components (m)".into()));
+                }
+            }
+        }
+        Ok(())
     }
 
     /// The anchors in world coordinates of the bodies' current poses, sorted by particle and
@@ -230,6 +256,28 @@ mod tests {
         // Reaction on the plate balances the force on the particle.
         assert!((forces[0].0 + out[0].force).norm() < 1e-15);
         (v[0], out)
+    }
+
+    #[test]
+    fn saved_anchors_a_step_could_not_use_are_refused() {
+        let anchor = |body: u16, local: [f64; 3]| Anchor { body, local };
+        let memory = |slot: Vec<Anchor>| ContactMemory { anchors: vec![Vec::new(), slot] };
+        memory(vec![anchor(0, [0.0, 0.0, 0.01]), anchor(1, [0.0; 3])]).check(2, 10).unwrap();
+        for (slot, start) in [
+            (vec![anchor(2, [0.0; 3])], "contact memory of particle 11: anchor `body` = 2 "),
+            (vec![anchor(1, [0.0; 3]), anchor(1, [0.0; 3])], "contact memory of particle 11: anchor `body` = 1 "),
+            (
+                vec![anchor(0, [0.0, f64::INFINITY, 0.0])],
+                "contact memory of particle 11: anchor `local` = [0, inf, 0] ",
+            ),
+        ] {
+            match memory(slot).check(2, 10) {
+                Err(RmiError::State(m)) => {
+                    assert!(m.starts_with(start) && m.contains("is not accepted; expected"), "{m}")
+                }
+                r => panic!("{start}: expected a state error, got {r:?}"),
+            }
+        }
     }
 
     #[test]

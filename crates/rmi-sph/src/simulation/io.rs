@@ -93,63 +93,6 @@ pub struct Snapshot {
 }
 
 impl Snapshot {
-    /// Consistency checks: lengths agree and every value is finite.
-    pub fn check(&self) -> Result<()> {
-        if self.version != VERSION {
-            return Err(RmiError::State(format!("snapshot version {} (this build reads {VERSION})", self.version)));
-        }
-        let p = &self.particles;
-        let n = p.x.len();
-        let ns =
-            n.checked_sub(p.n_fluid).ok_or_else(|| RmiError::State("n_fluid exceeds the particle count".into()))?;
-        for (name, len) in [
-            ("v", p.v.len()),
-            ("mass", p.mass.len()),
-            ("material", p.material.len()),
-            ("id", p.id.len()),
-            ("kappa_dt2", self.kappa_dt2.len()),
-            ("dv_prev", self.dv_prev.len()),
-            ("response_prev", self.response_prev.len()),
-            ("vstar_prev", self.vstar_prev.len()),
-        ] {
-            if len != n {
-                return Err(RmiError::State(format!("array `{name}` has {len} entries, expected {n}")));
-            }
-        }
-        for (name, len) in [
-            ("rest_positions", self.rest_positions.len()),
-            ("fixed", self.fixed.len()),
-            ("contact_load", self.contact_load.len()),
-            ("rotation", self.solid.rotation.len()),
-        ] {
-            if len != ns {
-                return Err(RmiError::State(format!(
-                    "array `{name}` has {len} entries, expected {ns} (solid particles)"
-                )));
-            }
-        }
-        let finite = |v: &Vector3<f64>| v.iter().all(|c| c.is_finite());
-        if !p
-            .x
-            .iter()
-            .chain(&p.v)
-            .chain(&self.boundary_velocities)
-            .chain(&self.dv_prev)
-            .chain(&self.response_prev)
-            .chain(&self.vstar_prev)
-            .chain(&self.rest_positions)
-            .all(finite)
-            || !self.kappa_dt2.iter().all(|k| k.is_finite())
-            || !self.time.is_finite()
-        {
-            return Err(RmiError::State("snapshot contains non-finite values".into()));
-        }
-        if let Some(m) = &self.coarse {
-            m.check(n).map_err(|e| RmiError::State(format!("the snapshot's coarse matrix is not valid: {e}")))?;
-        }
-        self.config.validate().map_err(|e| RmiError::State(format!("the snapshot's config is not valid: {e}")))
-    }
-
     /// Serialises to bytes: magic header, bincode payload, checksum of both.
     pub fn to_bytes(&self) -> Vec<u8> {
         let mut out = MAGIC.to_vec();

@@ -5,11 +5,13 @@
 //!   its accessors;
 //! - [`step`](Simulation::step) and its variants: the step, stage by stage (`step.rs`);
 //! - [`Snapshot`]: persistence, bit-identical continuation from a saved state (`io.rs`);
+//! - what a snapshot must satisfy before a simulation continues from it (`snapshot_check.rs`);
 //! - queries on the current state: sponge volumes, pore water, retained water, motion,
 //!   pressure and coupling forces (`queries.rs`).
 
 mod io;
 mod queries;
+mod snapshot_check;
 mod step;
 
 pub use io::{fnv1a64, read_limited, read_state, seal, unseal, write_atomic, CoarseMatrix, Snapshot};
