@@ -248,14 +248,18 @@ def breakdown(net: Any, wms: dict[str, Any], hist: Any, mask: Any, args: Any,
             net.denoise(x, t, cond.expand(k, -1))
         gflop = counter.get_total_flops() / 1e9
         parts["encode history+goal (1 window)"] = median_ms(
-            lambda: net.encode_condition(hist, mask, goal_vec), reps)
+            lambda: net.encode_condition(hist, mask, goal_vec), reps
+        )
         parts[f"UNet pass, eager, batch {k}"] = median_ms(
-            lambda: net.denoise(x, t, cond.expand(k, -1)), reps)
+            lambda: net.denoise(x, t, cond.expand(k, -1)), reps
+        )
         parts["FiLM tables, fast path (per decision)"] = median_ms(lambda: sampler.film(cond), reps)
         parts[f"UNet pass, fast path, batch {k}"] = median_ms(
-            lambda: sampler.denoise(x, film, 1), reps)
+            lambda: sampler.denoise(x, film, 1), reps
+        )
         parts[f"W_T scoring {k} x 32"] = median_ms(
-            lambda: wms["wt"].predict(hist.expand(k, -1, -1), mask.expand(k, -1, -1), u), reps)
+            lambda: wms["wt"].predict(hist.expand(k, -1, -1), mask.expand(k, -1, -1), u), reps
+        )
         parts[f"AC-GRU-WM scoring {k} x 32"] = median_ms(
             lambda: wms["gru"].predict(hist, mask, u), reps)  # fmt: skip
         if "arx" in wms:

@@ -78,7 +78,7 @@ def table(errors: dict[Any, Any], latency: dict[Any, float], sizes: list[int]) -
         + " |"
     )
     lines = [head, "|---|---:|---|" + "---|" * len(cols)]
-    for (path, obj, steps) in sorted(errors, key=lambda k: (k[1], k[2], k[0])):
+    for path, obj, steps in sorted(errors, key=lambda k: (k[1], k[2], k[0])):
         lat = " / ".join(
             f"{latency[path, obj, steps, b]:.1f}" if (path, obj, steps, b) in latency else "-"
             for b in SCORERS.values()
@@ -106,7 +106,8 @@ def figure(errors: dict[Any, Any], latency: dict[Any, float], sizes: list[int], 
                 pts = sorted(
                     (latency[k[0], obj, k[2], b], v[f"ranked-{sc}"][size], k[0])
                     for k, v in errors.items()
-                    if k[1] == obj and (k[0], obj, k[2], b) in latency
+                    if k[1] == obj
+                    and (k[0], obj, k[2], b) in latency
                     and size in v.get(f"ranked-{sc}", {})
                 )
                 teach = [p for p in pts if p[2] == "fast"]

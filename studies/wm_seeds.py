@@ -24,8 +24,8 @@ from typing import Any
 
 import torch
 
-from rmi_learn.world_models.evaluation import HORIZON_STEPS as STEPS
-from rmi_learn.world_models.evaluation import horizon_label
+from rmi_learn.world_models.horizons import HORIZON_STEPS as STEPS
+from rmi_learn.world_models.horizons import horizon_label
 
 SIZES = (8, 10, 12)
 

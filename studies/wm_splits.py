@@ -23,7 +23,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from rmi_learn.world_models.evaluation import MAIN_STEP, SIZES, horizon_label, lookup
+from rmi_learn.world_models.evaluation import SIZES, lookup
+from rmi_learn.world_models.horizons import MAIN_STEP, horizon_label
 
 #: The rows compared, keyed as in ``rmi eval-wm``'s results.json.
 ROWS: dict[str, dict[str, Any]] = {

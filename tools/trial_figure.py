@@ -23,7 +23,7 @@ from typing import Any
 import polars as pl
 
 import rmi_sph
-from rmi_learn.analysis.physical import plot_single_run
+from rmi_learn.analysis.figures import plot_single_run
 from rmi_learn.data.runs import atomic_write_bytes
 from rmi_learn.data.sweep import load_grid
 

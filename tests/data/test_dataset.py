@@ -26,7 +26,6 @@ from rmi_learn.data.dataset import (
 )
 from rmi_learn.data.runs import (
     RUN_COLUMNS,
-    RunFileError,
     atomic_write_bytes,
     iter_run_files,
     read_run,
@@ -44,6 +43,7 @@ from rmi_learn.data.schema import (
     OBS,
 )
 from rmi_learn.data.synthetic import simulate_toy_run
+from rmi_learn.errors import RunFileError
 
 torch = pytest.importorskip("torch")
 torch.set_num_threads(1)

@@ -12,8 +12,9 @@ import polars as pl
 import pytest
 
 from rmi_learn.data.dataset import build_dataset
-from rmi_learn.data.runs import RunFileError, read_run, run_path, write_run
+from rmi_learn.data.runs import read_run, run_path, write_run
 from rmi_learn.data.synthetic import simulate_toy_run
+from rmi_learn.errors import RunFileError
 
 PARAMS = {"size_cm": 8, "porosity": 0.5, "F_hold": 30.0, "F_squeeze": 150.0, "seed": 0}
 

@@ -18,12 +18,11 @@ import polars as pl
 from rmi_learn.data.runs import (
     ERROR_FILE,
     RUN_FILE,
-    RunFileError,
     check_run_schema,
     read_run_meta,
 )
 from rmi_learn.data.sweep import INDEX_FILE, INDEX_SCHEMA, RUNS_SUBDIR, build_index, index_frame
-from rmi_learn.errors import InputError
+from rmi_learn.errors import InputError, RunFileError
 
 #: Phases whose water removal is analysed. ``settle`` precedes contact and ``done`` is the
 #: release, so neither is a transport phase of the grasp.

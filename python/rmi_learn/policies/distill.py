@@ -40,7 +40,7 @@ from rmi_learn.errors import InputError
 
 
 def few_step_sample(net: Any, sched: Any, obs_cond: Any, noise: Any) -> Any:
-    """The sampler ``sched`` (:class:`~rmi_learn.policies.realtime.Schedule`) over ``net``
+    """The sampler ``sched`` (:class:`~rmi_learn.policies.fast_sampler.Schedule`) over ``net``
     with autograd: chunks (N, H, A) from ``noise`` (N, H, A) and encoded conditions (N, C)."""
     import torch
 

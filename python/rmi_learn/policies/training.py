@@ -10,7 +10,7 @@ matching by the validation flow MSE with EMA weights (fixed noise and times). Th
 validation loss and, for diffusion, the unweighted x0 MSE per noise bucket are logged too.
 
 The run stores the dataset's standardisation statistics (``config["extra"]["stats"]``), so it
-acts without the dataset (:func:`rmi_learn.policies.load_policy`); with ``wm`` it also stores
+acts without the dataset (:func:`rmi_learn.planning.load_policy`); with ``wm`` it also stores
 a copy of the world model that ranks its samples (``world_model/``).
 """
 

@@ -125,7 +125,7 @@ def test_perturbed_seeds_follow_their_own_force_targets_from_the_lift_on(tmp_pat
     # Resuming with the same grid is a no-op; the physical tables leave the perturbed run out.
     again = run_sweep(specs, out, workers=0, progress=False, grid=grid)
     assert again.skipped == 2
-    from rmi_learn.analysis.physical import load_runs
+    from rmi_learn.analysis.run_table import load_runs
 
     assert load_runs(out).index["seed"].to_list() == [0]
 
