@@ -11,9 +11,8 @@ run's total, as in ``convergence.py``), the peak grip force, lift success and th
     python studies/cg_tolerance.py table results/cg-tolerance [--json]
 
 With ``--jobs 2`` two trials share the machine, so the wall times compare tolerances only
-roughly; benchmark speed side by side
-(docs/benchmark-history.md#the-implicit-solves-tolerance-1e-4-to-3e-3-2026-11-27-night-2-cores). Finished trials are JSON files
-under OUT (written atomically) and are skipped when the command runs again.
+roughly; benchmark speed side by side (docs/benchmark-history.md, "The implicit solve's
+tolerance"). Finished trials are JSON files under OUT (written atomically) and are skipped when the command runs again.
 """
 
 from __future__ import annotations

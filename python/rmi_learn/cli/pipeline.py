@@ -1,7 +1,7 @@
 """``rmi pipeline``: every stage from the run grid to the report, resumable.
 
     rmi pipeline --preset quick --out results/quick
-    rmi pipeline --preset paper --out results/paper  # the 594-run grid (docs/benchmarks.md#paper-grid-wall-time)
+    rmi pipeline --preset paper --out results/paper  # 594 runs: docs/benchmarks.md
     rmi pipeline --config my_pipeline.json --out DIR [--only rank closed-loop report]
 
 A finished stage is skipped on the next call; an interrupted one continues (see
