@@ -12,7 +12,8 @@ run's total, as in ``convergence.py``), the peak grip force, lift success and th
 
 With ``--jobs 2`` two trials share the machine, so the wall times compare tolerances only
 roughly; benchmark speed side by side (docs/benchmark-history.md, "The implicit solve's
-tolerance"). Finished trials are JSON files under OUT (written atomically) and are skipped when the command runs again.
+tolerance"). Finished trials are JSON files under OUT (written atomically) and are skipped
+when the command runs again.
 """
 
 from __future__ import annotations
