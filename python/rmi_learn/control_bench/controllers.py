@@ -194,12 +194,6 @@ class Bench:
         self.executions += 1
         return execute_forces(self.sim, state, forces, self.substeps)
 
-    # -- helpers --------------------------------------------------------------------
-
-    def _exec(self, state: bytes, forces: np.ndarray) -> Execution:
-        self.executions += 1
-        return execute_forces(self.sim, state, forces, self.substeps)
-
     def _goal_std(self, g_kg: np.ndarray) -> Any:
         g = torch.as_tensor(np.asarray(g_kg), dtype=torch.float32)
         return (g - self.std.z_mean[0]) / self.std.z_std[0]
