@@ -4,9 +4,13 @@ stderr naming the field or path (and the accepted range), and leaves nothing hal
 from __future__ import annotations
 
 import errno
+import io
 import json
+import os
 import shutil
+import threading
 from pathlib import Path
+from typing import Any
 
 import polars as pl
 import pytest
@@ -301,3 +305,139 @@ def test_an_output_directory_that_cannot_be_written_is_named(
     assert main(argv) == 2
     assert str(out) in one_line(capsys, command)
     assert not out.exists()
+
+
+#: The documented cap on a JSON file the user names (docs/reliability.md).
+MAX_JSON_BYTES = 16 * 1024 * 1024
+
+#: How each command takes a JSON file the user names, and what the file holds.
+NAMED_FILES = {
+    "train-wm": (["train-wm", "--model", "arx", "--data", "d", "--config"], "config file"),
+    "simulate": (["simulate", "--config"], "trial config file"),
+    "sweep": (["sweep", "--no-progress", "--grid"], "grid file"),
+}
+
+
+def run_with_deadline(argv: list[str], fifo: Path | None = None) -> int:
+    """``main(argv)`` in a thread that must finish within a deadline; a call still waiting
+    on the FIFO ``fifo`` then is released (a writer opens and closes it) and fails the test.
+    What the call raised is raised here."""
+    result: list[Any] = []
+
+    def call() -> None:
+        try:
+            result.append(main(argv))
+        except BaseException as exc:  # handed to the test's thread
+            result.append(exc)
+
+    thread = threading.Thread(target=call, daemon=True)
+    thread.start()
+    thread.join(timeout=60)
+    if thread.is_alive() and fifo is not None:
+        with open(fifo, "wb"):
+            pass
+        thread.join(timeout=60)
+        pytest.fail(f"{argv[0]} waited for a writer of the FIFO {fifo}")
+    assert result, f"{argv[0]} did not finish"
+    if isinstance(result[0], BaseException):
+        raise result[0]
+    return int(result[0])
+
+
+@pytest.mark.parametrize("kind", ["device", "fifo", "directory", "oversized"])
+@pytest.mark.parametrize("command", sorted(NAMED_FILES))
+def test_a_named_file_must_be_a_regular_file_within_the_size_limit(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], command: str, kind: str
+) -> None:
+    """``/dev/zero`` as a config once ended in a MemoryError and a FIFO waited forever: only
+    a regular file of at most 16 MiB is read, and anything else is one line naming it."""
+    path = {"device": Path("/dev/zero"), "directory": tmp_path}.get(kind, tmp_path / "f.json")
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "oversized":
+        with open(path, "wb") as f:
+            f.truncate(MAX_JSON_BYTES + 1)  # sparse: no disk space needed
+    argv, what = NAMED_FILES[command]
+    out = tmp_path / "out"
+    assert run_with_deadline([*argv, str(path), "--out", str(out)], path) == 2
+    line = one_line(capsys, command)
+    assert str(path) in line and what in line
+    if kind == "oversized":
+        assert f"{MAX_JSON_BYTES + 1} bytes or more exceed the limit of 16 MiB" in line
+    else:
+        assert "is not a regular file" in line
+    assert not out.exists()
+
+
+class FullDiskFile(io.RawIOBase):
+    """A file on a full disk: every write fails as the system's would."""
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, data: object) -> int:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def fill_the_disk(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every write of a file fails with ENOSPC: the atomic writer's file, ``Path.write_*``,
+    and polars writing to a path itself (reported by polars as on a real full disk)."""
+    import rmi_learn.data.dataset as dataset
+    import rmi_learn.data.runs as runs
+
+    real = runs.atomic_write_bytes
+
+    def atomic(path: Path, writer: Any) -> Path:
+        return real(path, lambda f: writer(FullDiskFile()))
+
+    monkeypatch.setattr(runs, "atomic_write_bytes", atomic)
+    monkeypatch.setattr(dataset, "atomic_write_bytes", atomic)
+    monkeypatch.setattr(Path, "write_bytes", lambda self, data: FullDiskFile().write(data))
+    monkeypatch.setattr(Path, "write_text", lambda self, *a, **k: FullDiskFile().write(b""))
+    real_parquet = pl.DataFrame.write_parquet
+
+    def write_parquet(self: pl.DataFrame, file: Any, *args: Any, **kwargs: Any) -> Any:
+        if isinstance(file, (str, os.PathLike)):
+            raise pl.exceptions.ComputeError(
+                "parquet: File out of specification: underlying IO error: "
+                "No space left on device (os error 28)"
+            )
+        return real_parquet(self, file, *args, **kwargs)
+
+    monkeypatch.setattr(pl.DataFrame, "write_parquet", write_parquet)
+
+
+def tree(root: Path) -> dict[Path, bytes | None]:
+    """Every path under ``root`` with the bytes of the files."""
+    return {p.relative_to(root): p.read_bytes() if p.is_file() else None for p in root.rglob("*")}
+
+
+@pytest.mark.parametrize("existing", [False, True], ids=["new-out", "existing-out"])
+@pytest.mark.parametrize("command", ["build", "export"])
+def test_dataset_on_a_full_disk_is_one_line_and_leaves_nothing(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    synthetic_runs_dir: Path,
+    synthetic_dataset_dir: Path,
+    command: str,
+    existing: bool,
+) -> None:
+    """A full disk once ended `dataset build` and `dataset export` in a polars traceback,
+    and `build` left an empty --out: now one line naming --out, status 2, no --out that the
+    command created, and an --out that existed (a previous build; an empty directory for
+    the export) as it was."""
+    out = tmp_path / "parent" / "out"
+    if existing and command == "build":
+        shutil.copytree(synthetic_dataset_dir, out)
+    elif existing:
+        out.mkdir(parents=True)
+    before = tree(tmp_path)
+    fill_the_disk(monkeypatch)
+    source = ["--runs", str(synthetic_runs_dir)] if command == "build" else ["--data"]
+    if command == "export":
+        source.append(str(synthetic_dataset_dir))
+    assert main(["dataset", command, *source, "--out", str(out)]) == 2
+    line = one_line(capsys, "dataset")
+    assert str(out) in line and "No space left on device" in line
+    assert tree(tmp_path) == before  # hidden temporaries included

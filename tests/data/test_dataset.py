@@ -5,7 +5,11 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
+import signal
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +18,7 @@ import polars as pl
 import pytest
 
 from rmi_learn.cli import main as cli_main
+from rmi_learn.data import staging
 from rmi_learn.data.dataset import (
     CATEGORICAL,
     Stats,
@@ -475,3 +480,34 @@ def test_cli_build_and_info(
     )
     with pytest.raises(FileNotFoundError):
         load_dataset(tmp_path / "x")
+
+
+def test_a_killed_build_leaves_the_previous_dataset_and_its_temporary_goes_next_time(
+    synthetic_runs_dir: Path, synthetic_dataset_dir: Path, tmp_path: Path
+) -> None:
+    """A build killed with SIGKILL just before it moves its files in leaves the dataset that
+    was in --out as it was, and the next build into --out removes its temporary directory."""
+    out = tmp_path / "ds"
+    shutil.copytree(synthetic_dataset_dir, out)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    script = (
+        "import os, signal, sys\n"
+        "from rmi_learn.data import staging\n"
+        "from rmi_learn.data.dataset import build_dataset\n"
+        "staging.move_in = lambda *a: os.kill(os.getpid(), signal.SIGKILL)\n"
+        "build_dataset(sys.argv[1], sys.argv[2], seed=1)\n"
+    )
+    package_root = Path(staging.__file__).resolve().parents[2]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(package_root), *sys.path])}
+    killed = subprocess.run(
+        [sys.executable, "-c", script, str(synthetic_runs_dir), str(out)],
+        env=env,
+        timeout=300,
+        check=False,
+    )
+    assert killed.returncode == -signal.SIGKILL
+    hidden = [p for p in out.iterdir() if p.name.startswith(".build.")]
+    assert len(hidden) == 1 and (hidden[0] / "dataset.json").is_file()
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p not in hidden} == before
+    assert cli_main(["dataset", "build", "--runs", str(synthetic_runs_dir), "--out", str(out)]) == 0
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # the same build again

@@ -5,7 +5,11 @@ dataset's metadata, and the refusals that leave nothing half-written."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -207,3 +211,69 @@ def test_a_failure_leaves_no_output_and_no_temporary(
     with pytest.raises(OSError, match="disk full"):
         lerobot.export_lerobot(synthetic_dataset_dir, tmp_path / "export")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_unknown_phase_is_named_with_the_accepted_names(
+    synthetic_dataset_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A phase with no index in ``schema.PHASES`` once ended in a KeyError traceback."""
+    data = tmp_path / "ds"
+    shutil.copytree(synthetic_dataset_dir, data)
+    frames = pl.read_parquet(data / "frames.parquet")
+    phase = frames["phase"].to_list()
+    phase[len(phase) // 2] = "wobble"
+    frames.with_columns(pl.Series("phase", phase)).write_parquet(data / "frames.parquet")
+    out = tmp_path / "export"
+    assert main(["dataset", "export", "--data", str(data), "--out", str(out)]) == 2
+    line = one_line(capsys)
+    assert str(data / "frames.parquet") in line and "unknown phase 'wobble'" in line
+    assert f"accepted: {', '.join(PHASES)}" in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
+
+
+def test_the_temporary_of_a_killed_export_is_removed_by_the_next_one(
+    synthetic_dataset_dir: Path, tmp_path: Path
+) -> None:
+    """An export killed with SIGKILL (here in the middle of its episodes) leaves its hidden
+    temporary directory; the next export into the same directory removes it, and leaves
+    any other hidden directory alone."""
+    parent = tmp_path / "exports"
+    parent.mkdir()
+    (parent / ".notes.tmp").mkdir()  # not an export's: kept
+    script = (
+        "import os, signal, sys\n"
+        "import rmi_learn.data.export_lerobot as lerobot\n"
+        "lerobot.table_stats = lambda table: os.kill(os.getpid(), signal.SIGKILL)\n"
+        "lerobot.export_lerobot(sys.argv[1], sys.argv[2])\n"
+    )
+    package_root = Path(lerobot.__file__).resolve().parents[2]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(package_root), *sys.path])}
+    killed = subprocess.run(
+        [sys.executable, "-c", script, str(synthetic_dataset_dir), str(parent / "first")],
+        env=env,
+        timeout=300,
+        check=False,
+    )
+    assert killed.returncode == -signal.SIGKILL
+    left = [p.name for p in parent.iterdir() if p.name.startswith(".first.")]
+    assert len(left) == 1 and (parent / left[0] / "data").is_dir()
+    argv = ["dataset", "export", "--data", str(synthetic_dataset_dir)]
+    assert main([*argv, "--out", str(parent / "second")]) == 0
+    assert sorted(p.name for p in parent.iterdir()) == [".notes.tmp", "second"]
+
+
+def test_an_out_linking_to_an_empty_directory_is_written_through(
+    synthetic_dataset_dir: Path, tmp_path: Path
+) -> None:
+    """An empty --out is accepted, also as a symbolic link (once refused as "Not a
+    directory"): the export lands where the link points, and the link stays."""
+    real = tmp_path / "real"
+    real.mkdir()
+    link = tmp_path / "link"
+    link.symlink_to(real, target_is_directory=True)
+    argv = ["dataset", "export", "--data", str(synthetic_dataset_dir), "--out", str(link)]
+    assert main(argv) == 0
+    assert link.is_symlink() and link.resolve() == real.resolve()
+    info = json.loads((real / "meta" / "info.json").read_text())
+    assert info["total_episodes"] == len(list((real / "data").rglob("*.parquet")))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link", "real"]

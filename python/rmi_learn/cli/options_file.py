@@ -26,6 +26,7 @@ from typing import Any, NoReturn
 
 from rmi_learn.errors import InputError
 from rmi_learn.option_types import counts
+from rmi_learn.user_files import read_user_text
 
 #: Keys a file may not set: the file itself and the help.
 _EXCLUDED = frozenset({"config", "help"})
@@ -69,11 +70,12 @@ class _QuietParser(argparse.ArgumentParser):
 
 def read_options(path: Path) -> dict[str, Any]:
     """The object in the JSON (or ``.toml``) file ``path``; InputError naming the file for
-    one that is missing, not text, not parseable or not an object."""
+    one that is missing, not a regular file, too long (see
+    :func:`~rmi_learn.user_files.read_user_text`), not text, not parseable or not an object."""
     from rmi_learn.data.runs import json_kind
 
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_user_text(path, "config file", label=f"--config {path}")
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"--config {path}: cannot read it ({exc})") from exc
     data: Any

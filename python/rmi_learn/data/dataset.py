@@ -33,7 +33,8 @@ Processing, in order:
 Cached form written to ``out_dir``: ``frames.parquet`` (kept rows, raw SI values, with
 ``run``, ``t`` row index within the run, ``k`` grid index, ``segment``), ``runs.parquet``
 (one row per run: number, id, parameters, split, row counts), ``stats.json`` and
-``dataset.json`` (build facts and counts).
+``dataset.json`` (build facts and counts). They are written whole or not at all: into a
+temporary directory inside ``out_dir``, then moved in together, ``dataset.json`` last.
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,6 +52,7 @@ import numpy as np
 import polars as pl
 
 from rmi_learn import __version__
+from rmi_learn.data import staging
 from rmi_learn.data.runs import (
     PARAM_KEYS,
     atomic_write_bytes,
@@ -375,10 +378,6 @@ def build_dataset(
         train.select(CONTROL_ACTIONS).to_numpy().astype(np.float64),
     )
 
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(out / "frames.parquet", lambda f: frame.write_parquet(f))
-    atomic_write_bytes(out / "runs.parquet", lambda f: runs.write_parquet(f))
-    atomic_write_json(out / "stats.json", stats.to_json())
     per_split = {
         s: {
             "runs": int(runs.filter(pl.col("split") == s).height),
@@ -397,15 +396,46 @@ def build_dataset(
         "counts": {**counts, "kept": len(kept), "rows": frame.height},
         "splits": per_split,
     }
-    atomic_write_json(out / "dataset.json", info)  # written last: marks a complete build
+    _write_build(out, frame, runs, stats, info)
     return out
+
+
+#: The files of a built dataset in the order they are moved into place: ``dataset.json``
+#: last, as it marks a complete build.
+BUILD_FILES = ("frames.parquet", "runs.parquet", "stats.json", "dataset.json")
+
+
+def _write_build(
+    out: Path, frame: pl.DataFrame, runs: pl.DataFrame, stats: Stats, info: dict[str, Any]
+) -> None:
+    """Write the dataset's files into ``out``, whole or not at all: they are written into a
+    temporary directory inside ``out`` and moved in together, so an error (a full disk)
+    leaves an existing ``out`` as it was and removes an ``out`` this build created."""
+    made = staging.make_dirs(out)
+    try:
+        staging.remove_stale_temporaries(out)
+        tmp = staging.temporary_dir(out, "build")
+        try:
+            frames_data, runs_data = staging.parquet_bytes(frame), staging.parquet_bytes(runs)
+            atomic_write_bytes(tmp / "frames.parquet", lambda f: f.write(frames_data))
+            atomic_write_bytes(tmp / "runs.parquet", lambda f: f.write(runs_data))
+            atomic_write_json(tmp / "stats.json", stats.to_json())
+            atomic_write_json(tmp / "dataset.json", info)
+            staging.move_in(tmp, out, list(BUILD_FILES))
+        except OSError as exc:
+            staging.raise_named_for(exc, tmp, out)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    except BaseException:
+        staging.remove_made_dirs(made)
+        raise
 
 
 # --------------------------------------------------------------------------------------
 # Load and windows
 
 
-def _read_table(path: Path, columns: Sequence[str]) -> pl.DataFrame:
+def read_table(path: Path, columns: Sequence[str]) -> pl.DataFrame:
     """A table of a built dataset; a damaged file (a copy cut short, a full disk) or one
     without ``columns`` raises :class:`~rmi_learn.errors.InputError` naming it."""
     try:
@@ -438,8 +468,8 @@ class Dataset:
             got = self.info.get("format") if isinstance(self.info, dict) else self.info
             raise ValueError(f"{info_path}: dataset format {got!r} != {FORMAT_VERSION}")
         self.stats = Stats.from_json(json.loads((self.root / "stats.json").read_text()))
-        self.runs = _read_table(self.root / "runs.parquet", ("run", "run_id", "split"))
-        self.frames = _read_table(self.root / "frames.parquet", ("run", "t", "segment", *OBS))
+        self.runs = read_table(self.root / "runs.parquet", ("run", "run_id", "split"))
+        self.frames = read_table(self.root / "frames.parquet", ("run", "t", "segment", *OBS))
         f = self.frames
         self.run_ids: list[str] = self.runs.sort("run")["run_id"].to_list()
         self.row_run = f["run"].to_numpy().astype(np.int64)

@@ -35,7 +35,9 @@ exported values (the filled zeros included) over every frame, as LeRobot compute
 dataset's own ``stats.json`` covers the training split only.
 
 The export is written into a temporary directory beside ``out_dir`` and renamed to it at
-the end, so ``out_dir`` either does not exist or holds a complete export.
+the end, so ``out_dir`` either does not exist or holds a complete export; the temporary
+directory of an export that was killed is removed by the next export into the same
+directory (see :mod:`rmi_learn.data.staging`).
 """
 
 from __future__ import annotations
@@ -44,7 +46,6 @@ import json
 import math
 import os
 import shutil
-import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -52,7 +53,8 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from rmi_learn.data.dataset import FORMAT_VERSION, SPLITS, _read_table
+from rmi_learn.data import staging
+from rmi_learn.data.dataset import FORMAT_VERSION, SPLITS, read_table
 from rmi_learn.data.schema import OBS, PHASES
 from rmi_learn.errors import InputError
 
@@ -186,11 +188,13 @@ def _check_out(out: Path) -> None:
 def export_lerobot(data_dir: str | os.PathLike[str], out_dir: str | os.PathLike[str]) -> Path:
     """Export the dataset built in ``data_dir`` (``rmi dataset build``) to LeRobot's v2.1
     layout in ``out_dir`` and return ``out_dir`` (see the module docstring for the files and
-    columns). ``out_dir`` must not exist or be an empty directory.
+    columns). ``out_dir`` must not exist or be an empty directory; a symbolic link to an
+    empty directory is kept, and the export written where it points.
 
     Raises :class:`~rmi_learn.errors.InputError` for an ``out_dir`` that holds anything, a
-    damaged dataset or one without the named action channels; FileNotFoundError when
-    ``data_dir`` is not a built dataset.
+    damaged dataset, one without the named action channels or with a phase that is not one
+    of ``schema.PHASES``; FileNotFoundError when ``data_dir`` is not a built dataset; an
+    OSError naming ``out_dir`` (or the file in it) when the export cannot be written.
     """
     data, out = Path(data_dir), Path(out_dir)
     _check_out(out)
@@ -201,91 +205,122 @@ def export_lerobot(data_dir: str | os.PathLike[str], out_dir: str | os.PathLike[
     if not isinstance(info, dict) or info.get("format") != FORMAT_VERSION:
         raise InputError(f"{info_path}: not a dataset of format {FORMAT_VERSION}; rebuild it")
     fps = _fps(info, info_path)
-    runs = _read_table(data / "runs.parquet", ("run", "run_id", "split"))
-    frames = _read_table(data / "frames.parquet", ("run", "t", "time", "phase", *OBS))
+    runs = read_table(data / "runs.parquet", ("run", "run_id", "split"))
+    frames = read_table(data / "frames.parquet", ("run", "t", "time", "phase", *OBS))
+    _check_phases(frames, data / "frames.parquet")
     u_names = _action_names(data / "stats.json", frames)
-    feats = features(u_names)
 
     order = {s: i for i, s in enumerate(SPLITS)}
     episodes = sorted(
         runs.select("run", "run_id", "split").rows(), key=lambda r: (order[r[2]], r[0])
     )
     by_run = {int(key[0]): g.sort("t") for key, g in frames.group_by("run")}
-
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    # Through a link to a directory the export goes where the link points; the link stays.
+    target = Path(os.path.realpath(out))
+    made = staging.make_dirs(target.parent)
     try:
-        (tmp / "meta").mkdir()
-        tables: list[pl.DataFrame] = []
-        meta: list[dict[str, Any]] = []
-        ep_stats: list[dict[str, Any]] = []
-        total = 0
-        for run, run_id, split in episodes:
-            rows = by_run.get(int(run))
-            if rows is None or rows.height == 0:
-                continue  # a run without kept rows has no frames to export
-            ep = len(meta)
-            table = _table(_episode(rows, u_names, ep, total, fps), feats)
-            path = tmp / DATA_PATH.format(episode_chunk=ep // CHUNKS_SIZE, episode_index=ep)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            table.write_parquet(path)
-            tables.append(table)
-            meta.append(
-                {
-                    "episode_index": ep,
-                    "tasks": [TASK],
-                    "length": table.height,
-                    "run_id": run_id,
-                    "split": split,
-                }
-            )
-            ep_stats.append({"episode_index": ep, "stats": table_stats(table)})
-            total += table.height
-        if not meta:
-            raise InputError(f"{data}: the dataset has no frames to export")
-        bounds: dict[str, str] = {}
-        start = 0
-        for split in SPLITS:
-            n = sum(1 for m in meta if m["split"] == split)
-            if n:
-                bounds[split] = f"{start}:{start + n}"
-            start += n
-        _write_json(
-            tmp / "meta" / "info.json",
-            {
-                "codebase_version": CODEBASE_VERSION,
-                "robot_type": ROBOT_TYPE,
-                "total_episodes": len(meta),
-                "total_frames": total,
-                "total_tasks": 1,
-                "total_videos": 0,
-                "total_chunks": (len(meta) - 1) // CHUNKS_SIZE + 1,
-                "chunks_size": CHUNKS_SIZE,
-                "fps": fps,
-                "splits": bounds,
-                "data_path": DATA_PATH,
-                "video_path": None,
-                "features": feats,
-                "rmi": {
-                    "source": str(data.resolve()),
-                    "phases": list(PHASES),
-                    "nan_fill": 0.0,
-                    "split_seed": info.get("seed"),
-                },
-            },
-        )
-        _write_jsonl(tmp / "meta" / "tasks.jsonl", [{"task_index": 0, "task": TASK}])
-        _write_jsonl(tmp / "meta" / "episodes.jsonl", meta)
-        _write_jsonl(tmp / "meta" / "episodes_stats.jsonl", ep_stats)
-        _write_json(tmp / "meta" / "stats.json", table_stats(pl.concat(tables)))
-        _check_out(out)  # again: another writer may have filled it meanwhile
-        if out.exists():
-            out.rmdir()
-        os.rename(tmp, out)
+        staging.remove_stale_temporaries(target.parent)
+        tmp = staging.temporary_dir(target.parent, target.name)
+        try:
+            _write_export(tmp, data, info, fps, u_names, episodes, by_run)
+            _check_out(out)  # again: another writer may have filled it meanwhile
+            if target.exists():
+                target.rmdir()
+            os.rename(tmp, target)
+        except OSError as exc:
+            staging.raise_named_for(exc, tmp, out)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        staging.remove_made_dirs(made)
         raise
     return out
+
+
+def _check_phases(frames: pl.DataFrame, path: Path) -> None:
+    """Refuse frames whose ``phase`` is not a name of ``schema.PHASES`` (it has no index)."""
+    unknown = sorted(set(frames["phase"].unique().to_list()) - set(PHASES), key=str)
+    if unknown:
+        names = ", ".join(repr(p) for p in unknown)
+        raise InputError(
+            f"{path}: unknown phase {names} in column 'phase'; accepted: {', '.join(PHASES)}"
+        )
+
+
+def _write_export(
+    tmp: Path,
+    data: Path,
+    info: dict[str, Any],
+    fps: int,
+    u_names: list[str],
+    episodes: list[tuple[Any, ...]],
+    by_run: dict[int, pl.DataFrame],
+) -> None:
+    """Write every file of the export into the directory ``tmp``."""
+    feats = features(u_names)
+    (tmp / "meta").mkdir()
+    tables: list[pl.DataFrame] = []
+    meta: list[dict[str, Any]] = []
+    ep_stats: list[dict[str, Any]] = []
+    total = 0
+    for run, run_id, split in episodes:
+        rows = by_run.get(int(run))
+        if rows is None or rows.height == 0:
+            continue  # a run without kept rows has no frames to export
+        ep = len(meta)
+        table = _table(_episode(rows, u_names, ep, total, fps), feats)
+        path = tmp / DATA_PATH.format(episode_chunk=ep // CHUNKS_SIZE, episode_index=ep)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(staging.parquet_bytes(table))
+        tables.append(table)
+        meta.append(
+            {
+                "episode_index": ep,
+                "tasks": [TASK],
+                "length": table.height,
+                "run_id": run_id,
+                "split": split,
+            }
+        )
+        ep_stats.append({"episode_index": ep, "stats": table_stats(table)})
+        total += table.height
+    if not meta:
+        raise InputError(f"{data}: the dataset has no frames to export")
+    bounds: dict[str, str] = {}
+    start = 0
+    for split in SPLITS:
+        n = sum(1 for m in meta if m["split"] == split)
+        if n:
+            bounds[split] = f"{start}:{start + n}"
+        start += n
+    _write_json(
+        tmp / "meta" / "info.json",
+        {
+            "codebase_version": CODEBASE_VERSION,
+            "robot_type": ROBOT_TYPE,
+            "total_episodes": len(meta),
+            "total_frames": total,
+            "total_tasks": 1,
+            "total_videos": 0,
+            "total_chunks": (len(meta) - 1) // CHUNKS_SIZE + 1,
+            "chunks_size": CHUNKS_SIZE,
+            "fps": fps,
+            "splits": bounds,
+            "data_path": DATA_PATH,
+            "video_path": None,
+            "features": feats,
+            "rmi": {
+                "source": str(data.resolve()),
+                "phases": list(PHASES),
+                "nan_fill": 0.0,
+                "split_seed": info.get("seed"),
+            },
+        },
+    )
+    _write_jsonl(tmp / "meta" / "tasks.jsonl", [{"task_index": 0, "task": TASK}])
+    _write_jsonl(tmp / "meta" / "episodes.jsonl", meta)
+    _write_jsonl(tmp / "meta" / "episodes_stats.jsonl", ep_stats)
+    _write_json(tmp / "meta" / "stats.json", table_stats(pl.concat(tables)))
 
 
 def table_stats(table: pl.DataFrame) -> dict[str, dict[str, list[float]]]:

@@ -45,6 +45,7 @@ import polars as pl
 from rmi_learn import __version__
 from rmi_learn.data.schema import ACTIONS, EXTRAS, OBS
 from rmi_learn.errors import RunFileError
+from rmi_learn.user_files import read_user_text
 
 #: Every column of a run file, in file order.
 RUN_COLUMNS: tuple[str, ...] = EXTRAS + OBS + ACTIONS
@@ -153,7 +154,8 @@ def read_json_source(
 ) -> tuple[Any, str]:
     """Parse a built-in preset (``<package>/<preset>.json``) or a JSON file: exactly one of
     ``preset`` and ``path``. Returns the parsed value and a label naming its source for error
-    messages; ``kind`` names what is read (e.g. "grid") in those messages."""
+    messages; ``kind`` names what is read (e.g. "grid") in those messages. A file is read
+    within the limits of :func:`~rmi_learn.user_files.read_user_text`."""
     if (preset is None) == (path is None):
         raise ValueError("give exactly one of preset or path")
     if preset is not None:
@@ -164,7 +166,7 @@ def read_json_source(
     else:
         source = str(path)
         try:
-            text = Path(path).read_text(encoding="utf-8")
+            text = read_user_text(path, f"{kind} file")
         except UnicodeDecodeError as exc:
             where = f"{exc.reason} at byte {exc.start}"
             raise ValueError(f"{source}: not UTF-8 text ({where})") from None
