@@ -52,7 +52,8 @@ pub struct TrialConfig {
     /// Implicit solve (tolerance, iterations, preconditioner). In a trial, `auto` means block
     /// Jacobi at every resolution: the two-level CG saves no time over a gripped 8 cm trial
     /// (docs/benchmark-history.md, "Porous anchor: a two-level preconditioner for the
-    /// implicit CG"). Name `two_level` to use it anyway.
+    /// implicit CG" and "The two-level preconditioner applied additively, its coarse matrix
+    /// kept for ten steps"). Name `two_level` to use it anyway.
     pub cg: CgConfig,
     /// Placement of the floor's and pads' boundary particles.
     pub wall_layer: WallLayer,

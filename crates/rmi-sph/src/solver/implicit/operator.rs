@@ -21,7 +21,8 @@ use std::sync::Arc;
 /// skeleton (16,000 particles at r = 2.5 mm) and also shortens the step of the medium
 /// sponge at r = 5 mm (2,000), below this threshold, which is kept so that the results of
 /// smaller scenes stay as they were (docs/benchmark-history.md, "Porous anchor: a two-level
-/// preconditioner for the implicit CG"). Trials resolve `auto` to block Jacobi themselves
+/// preconditioner for the implicit CG" and "The two-level preconditioner applied additively,
+/// its coarse matrix kept for ten steps"). Trials resolve `auto` to block Jacobi themselves
 /// (`TrialConfig::sim_config`).
 pub const TWO_LEVEL_MIN_SOLIDS: usize = 4000;
 
