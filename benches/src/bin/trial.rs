@@ -19,8 +19,8 @@
 //! JSON line, then the group's wall time.
 
 use rmi_benches::{fail, Args};
-use rmi_robot::trial::{run_trial_with, Trial, TrialConfig};
-use rmi_sph::presets::SPONGE_SIZES;
+use rmi_robot::config::{paper_sponge_size, TrialConfig};
+use rmi_robot::trial::{run_trial_with, Trial};
 
 fn main() {
     let args = Args::parse(
@@ -41,11 +41,9 @@ fn main() {
         ],
         &["--dry", "--profile", "--plate-load"],
     );
-    let size = match args.value("--size", 10u32) {
-        8 => SPONGE_SIZES[0],
-        10 => SPONGE_SIZES[1],
-        12 => SPONGE_SIZES[2],
-        other => fail(&format!("--size: {other} is not one of the paper's sizes 8, 10, 12 (cm)")),
+    let size_cm: u32 = args.value("--size", 10u32);
+    let Some(size) = paper_sponge_size(f64::from(size_cm)) else {
+        fail(&format!("--size: {size_cm} is not one of the paper's sizes 8, 10, 12 (cm)"))
     };
     let mut cfg = TrialConfig {
         size,

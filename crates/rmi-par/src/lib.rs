@@ -157,7 +157,7 @@ where
 
 /// [`for_each_hot`] over two arrays of equal length: `f(i, &mut a[i], &mut b[i])`.
 // Written out rather than delegated to `for_each_hot3` with a slice of `()`: that version
-// made the pressure and viscosity passes 10-20 % slower (dam break, alternating runs).
+// made the pressure and viscosity passes slower (dam break, alternating runs).
 #[inline(always)]
 pub fn for_each_hot2<A, B, F>(a: &mut [A], b: &mut [B], f: F)
 where

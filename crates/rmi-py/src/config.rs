@@ -1,15 +1,15 @@
-//! Configurations from Python: dicts, JSON text or JSON files. Trial configs are checked field
-//! by field against the shape of the default `TrialConfig` so that errors name the dotted
-//! field; engine configs (`SimConfig`) go through the engine's own JSON parser.
+//! Configurations from Python: dicts, JSON text or JSON files, converted to JSON values and
+//! handed to the core. Trial configs are built and checked by `rmi_robot::config` (errors
+//! name the dotted field); engine configs (`SimConfig`) go through the engine's own JSON
+//! parser.
 //!
-//! Conversion only: ranges and physics checks are the core's `validate` methods.
+//! Conversion only: defaults, field checks and ranges are the core's.
 
 use crate::errors::to_pyerr;
 use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
-use rmi_robot::TrialConfig;
-use rmi_sph::presets::SPONGE_SIZES;
+use rmi_robot::config::{field_path, PaperTrial, TrialConfig};
 use rmi_sph::{RmiError, SimConfig};
 use serde_json::{Map, Number, Value};
 
@@ -90,7 +90,7 @@ fn nested(obj: &Bound<'_, PyAny>, path: &str, open: &mut Vec<usize>, is_dict: bo
             let key: String = k
                 .extract()
                 .map_err(|_| to_pyerr(RmiError::config(shown(path), k.to_string(), "a table with string keys")))?;
-            let sub = join(path, &key);
+            let sub = field_path(path, &key);
             map.insert(key, to_value_at(&v, &sub, open)?);
         }
         return Ok(Value::Object(map));
@@ -122,94 +122,6 @@ fn shown(path: &str) -> &str {
     } else {
         path
     }
-}
-
-fn join(path: &str, key: &str) -> String {
-    if path.is_empty() {
-        key.to_owned()
-    } else {
-        format!("{path}.{key}")
-    }
-}
-
-fn kind(v: &Value) -> &'static str {
-    match v {
-        Value::Null => "null",
-        Value::Bool(_) => "a bool",
-        Value::Number(_) => "a number",
-        Value::String(_) => "a string",
-        Value::Array(_) => "a list",
-        Value::Object(_) => "a table",
-    }
-}
-
-/// Overlays `given` on `default` (same shape), checking every key and type: unknown keys,
-/// wrong types and non-integral values of integer fields are errors naming the field.
-pub fn overlay(default: &Value, given: &Value, path: &str) -> Result<Value, RmiError> {
-    match (default, given) {
-        (Value::Object(d), Value::Object(g)) => {
-            let mut out = d.clone();
-            for (k, v) in g {
-                let sub = join(path, k);
-                let Some(dv) = d.get(k) else {
-                    let known: Vec<&str> = d.keys().map(String::as_str).collect();
-                    return Err(RmiError::config(sub, "(unknown field)", format!("one of: {}", known.join(", "))));
-                };
-                out.insert(k.clone(), overlay(dv, v, &sub)?);
-            }
-            Ok(Value::Object(out))
-        }
-        (Value::Object(_), other) => {
-            Err(RmiError::config(path, other.to_string(), format!("a table (dict), not {}", kind(other))))
-        }
-        (Value::Array(d), Value::Array(g)) => {
-            if d.len() != g.len() {
-                return Err(RmiError::config(path, given.to_string(), format!("a list of {} values", d.len())));
-            }
-            let items: Result<Vec<_>, _> =
-                d.iter().zip(g).enumerate().map(|(i, (dv, gv))| overlay(dv, gv, &format!("{path}[{i}]"))).collect();
-            Ok(Value::Array(items?))
-        }
-        (Value::Array(d), other) => {
-            Err(RmiError::config(path, other.to_string(), format!("a list of {} values", d.len())))
-        }
-        (Value::Number(dn), Value::Number(gn)) => {
-            if dn.is_f64() {
-                return Ok(Value::Number(Number::from_f64(gn.as_f64().unwrap_or(f64::NAN)).unwrap_or(gn.clone())));
-            }
-            // Integer field: accept integral floats (5.0), refuse fractions and negatives.
-            let x = gn.as_f64().unwrap_or(f64::NAN);
-            if gn.is_u64() {
-                return Ok(given.clone());
-            }
-            if x.fract() == 0.0 && (0.0..=u64::MAX as f64).contains(&x) {
-                return Ok(Value::Number((x as u64).into()));
-            }
-            Err(RmiError::config(path, gn.to_string(), "a non-negative integer"))
-        }
-        (Value::Number(_), other) => {
-            Err(RmiError::config(path, other.to_string(), format!("a number, not {}", kind(other))))
-        }
-        (Value::Bool(_), Value::Bool(_)) => Ok(given.clone()),
-        (Value::Bool(_), other) => Err(RmiError::config(path, other.to_string(), "true or false")),
-        (Value::String(_), Value::String(_)) => Ok(given.clone()),
-        (Value::String(_), other) => Err(RmiError::config(path, other.to_string(), "a string")),
-        // Optional fields (null by default) take whatever serde accepts.
-        (Value::Null, _) => Ok(given.clone()),
-    }
-}
-
-/// The default trial config as JSON.
-pub fn default_value() -> Value {
-    serde_json::to_value(TrialConfig::default()).expect("the default trial config serialises")
-}
-
-/// Builds and validates a `TrialConfig` from JSON overlaid on the defaults.
-pub fn from_value(given: &Value) -> Result<TrialConfig, RmiError> {
-    let merged = overlay(&default_value(), given, "")?;
-    let cfg: TrialConfig = rmi_sph::config::from_value_named(&merged)?;
-    cfg.validate()?;
-    Ok(cfg.normalised())
 }
 
 /// Where a config comes from: a dict, as JSON, or JSON text (given, or read from a file).
@@ -249,7 +161,7 @@ pub fn extract(obj: &Bound<'_, PyAny>) -> PyResult<TrialConfig> {
         Source::Text(text) => serde_json::from_str(&text)
             .map_err(|e| to_pyerr(RmiError::config("trial", e.to_string(), "valid JSON text of a TrialConfig")))?,
     };
-    from_value(&value).map_err(to_pyerr)
+    TrialConfig::from_json_value(&value).map_err(to_pyerr)
 }
 
 /// An engine config from a dict, a JSON file path or JSON text, parsed and validated by
@@ -292,12 +204,8 @@ pub fn sim_to_dict<'py>(py: Python<'py>, cfg: &SimConfig) -> PyResult<Bound<'py,
     json_dict(py, &cfg.to_json())
 }
 
-/// Names of the `ControllerParams` fields (accepted as top-level overrides).
-fn controller_fields(default: &Value) -> Vec<String> {
-    default.get("controller").and_then(Value::as_object).map(|m| m.keys().cloned().collect()).unwrap_or_default()
-}
-
-/// `trial_config`: a paper sponge (size 8, 10 or 12 cm) with overrides.
+/// `trial_config`: a paper sponge (size 8, 10 or 12 cm) with overrides, each converted in
+/// the order given and handed to [`PaperTrial`].
 pub fn trial_config(
     size_cm: f64,
     porosity: f64,
@@ -307,51 +215,13 @@ pub fn trial_config(
     seed: u64,
     overrides: Option<&Bound<'_, PyDict>>,
 ) -> PyResult<TrialConfig> {
-    let Some(k) = [8.0, 10.0, 12.0].iter().position(|s| *s == size_cm) else {
-        return Err(to_pyerr(RmiError::config("size_cm", size_cm, "one of the paper's sizes 8, 10, 12 (cm)")));
-    };
-    let size = SPONGE_SIZES[k];
-    let default = default_value();
-    let ctrl = controller_fields(&default);
-    let mut given = Map::new();
-    let num = |x: f64, name: &str| {
-        Number::from_f64(x).map(Value::Number).ok_or_else(|| to_pyerr(RmiError::config(name, x, "a finite number")))
-    };
-    given.insert("size".into(), Value::Array(size.iter().map(|s| Value::from(*s)).collect()));
-    given.insert("porosity".into(), num(porosity, "porosity")?);
-    given.insert("hold_force".into(), num(hold_force, "hold_force")?);
-    given.insert("squeeze_force".into(), num(squeeze_force, "squeeze_force")?);
-    given.insert("particle_radius".into(), num(radius, "radius")?);
-    given.insert("seed".into(), Value::from(seed));
-    let mut controller = Map::new();
+    let mut trial = PaperTrial::new(size_cm, porosity, hold_force, squeeze_force, radius, seed).map_err(to_pyerr)?;
     if let Some(o) = overrides {
         for (k, v) in o.iter() {
             let key: String = k.extract()?;
             let value = to_value(&v, &key)?;
-            if ctrl.contains(&key) {
-                controller.insert(key, value);
-            } else if default.get(&key).is_some() {
-                if key == "controller" {
-                    if let Value::Object(m) = &value {
-                        for (ck, cv) in m {
-                            controller.entry(ck.clone()).or_insert_with(|| cv.clone());
-                        }
-                        continue;
-                    }
-                }
-                given.insert(key, value);
-            } else {
-                return Err(to_pyerr(RmiError::config(
-                    key,
-                    "(unknown override)",
-                    "a TrialConfig field (dt, jitter, record_every, saturated, material, gripper, friction, gate, \
-                     controller, ...) or a ControllerParams field (settle_time, ramp_time, hold_time, ...)",
-                )));
-            }
+            trial.set(&key, value).map_err(to_pyerr)?;
         }
     }
-    if !controller.is_empty() {
-        given.insert("controller".into(), Value::Object(controller));
-    }
-    from_value(&Value::Object(given)).map_err(to_pyerr)
+    trial.build().map_err(to_pyerr)
 }

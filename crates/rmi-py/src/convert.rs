@@ -1,7 +1,7 @@
 //! Observations, recorded trajectories, outcomes, particles and bodies as Python dicts and
 //! numpy arrays.
 //!
-//! Column layout of a trajectory = the run-file columns of `python/rmi_learn/CONTRACT.md`:
+//! Column layout of a trajectory = the run-file columns of `docs/data-contract.md` (Run files):
 //! `EXTRAS` (time, phase, v_com_x/y/z, gate_open, M_expelled, lift_height), the 23 `OBS`
 //! names of y_t, then `ACTIONS` (F_target, v_cmd).
 

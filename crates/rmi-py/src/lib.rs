@@ -214,7 +214,7 @@ fn _rmi_sph(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("EXTRA_NAMES", PyTuple::new(py, convert::EXTRAS)?)?;
     m.add("ACTION_NAMES", PyTuple::new(py, convert::ACTIONS)?)?;
     // The robot's physical limits and the paper's sponges, so Python never restates them.
-    m.add("FORCE_LIMIT_N", rmi_robot::controller::FORCE_LIMIT)?;
+    m.add("FORCE_LIMIT_N", rmi_robot::gripper::FORCE_LIMIT)?;
     let sizes: Vec<(f64, f64, f64)> = rmi_sph::presets::SPONGE_SIZES.iter().map(|s| (s[0], s[1], s[2])).collect();
     m.add("SPONGE_SIZES_M", PyTuple::new(py, sizes)?)?;
     m.add_function(wrap_pyfunction!(engine_info, m)?)?;

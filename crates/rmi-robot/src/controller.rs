@@ -8,13 +8,11 @@
 //! ramps to the squeeze force. The guards on the force limit and the minimum width act in
 //! every phase, also when a caller drives the gripper with its own `u_t = [F_target, v_cmd]`.
 
+use crate::gripper::FORCE_LIMIT;
 use crate::perturbation::SetpointPerturbation;
 use rmi_sph::config::check_range;
 use rmi_sph::{Result, RmiError};
 use serde::{Deserialize, Serialize};
-
-/// Hard force limit of the gripper (N): targets are clipped to it, loads above it open.
-pub const FORCE_LIMIT: f64 = 400.0;
 
 /// Controller phases, in the order a trial visits them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]

@@ -17,6 +17,9 @@ pub const SQUEEZE_AXIS: Vector3<f64> = Vector3::new(1.0, 0.0, 0.0);
 /// Lift axis (world z, against gravity).
 pub const LIFT_AXIS: Vector3<f64> = Vector3::new(0.0, 0.0, 1.0);
 
+/// Hard force limit of the gripper (N): targets are clipped to it, loads above it open.
+pub const FORCE_LIMIT: f64 = 400.0;
+
 /// Pad geometry, in fractions of the sponge face and metres.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]

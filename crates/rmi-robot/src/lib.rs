@@ -4,7 +4,9 @@
 //! squeeze a water-filled sponge, lift it and squeeze it again, while the water it holds and
 //! expels is observed every step. All quantities are SI.
 //!
-//! - [`gripper`]: the two pads (kinematic boxes) and their load read-back;
+//! - [`config`]: the trial's configuration ([`TrialConfig`]), built from JSON or from the
+//!   paper's sponge parameters and checked field by field;
+//! - [`gripper`]: the two pads (kinematic boxes), their load read-back and force limit;
 //! - [`controller`]: hybrid velocity/force regulation and the trial's phase sequence;
 //! - [`gate`]: the lift stability gate;
 //! - [`perturbation`]: seeded force targets from the lift on, for identifiable data;
@@ -19,6 +21,7 @@
 
 #![warn(missing_docs)]
 
+pub mod config;
 pub mod controller;
 pub mod gate;
 pub mod gripper;
@@ -27,5 +30,6 @@ pub mod perturbation;
 pub mod squeeze_group;
 pub mod trial;
 
+pub use config::TrialConfig;
 pub use squeeze_group::run_squeeze_group;
-pub use trial::{run_trial, Trial, TrialConfig};
+pub use trial::{run_trial, Trial};

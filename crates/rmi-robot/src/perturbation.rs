@@ -14,7 +14,7 @@
 //! stays within its band around the holding force, so a perturbed hold would change which
 //! trials are lifted rather than what the water does.
 
-use crate::controller::FORCE_LIMIT;
+use crate::gripper::FORCE_LIMIT;
 use rmi_sph::config::check_range;
 use rmi_sph::{Result, RmiError};
 use serde::{Deserialize, Serialize};

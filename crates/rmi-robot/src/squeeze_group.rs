@@ -7,9 +7,11 @@
 //! continues each member from it: every member's result has the bits of its own
 //! [`run_trial`](crate::trial::run_trial), at the cost of one prefix for the group.
 
-use crate::controller::{Phase, FORCE_LIMIT};
+use crate::config::TrialConfig;
+use crate::controller::Phase;
+use crate::gripper::FORCE_LIMIT;
 use crate::observe::Observation;
-use crate::trial::{Trial, TrialConfig, TrialResult};
+use crate::trial::{Trial, TrialResult};
 use rmi_sph::config::check_range;
 use rmi_sph::{Result, RmiError};
 use std::time::Instant;

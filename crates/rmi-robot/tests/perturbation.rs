@@ -1,9 +1,10 @@
 //! Trials with perturbed force targets: the commands recorded are the seeded schedule from
 //! the lift on, the hold stays scripted, and a restored trial continues the schedule.
 
+use rmi_robot::config::TrialConfig;
 use rmi_robot::controller::Phase;
 use rmi_robot::perturbation::SetpointPerturbation;
-use rmi_robot::trial::{Trial, TrialConfig};
+use rmi_robot::trial::Trial;
 
 mod common;
 use common::tiny;

@@ -1,7 +1,8 @@
 //! Trials run from a shared prefix equal the trials run on their own, bit for bit.
 
+use rmi_robot::config::TrialConfig;
 use rmi_robot::squeeze_group::run_squeeze_group;
-use rmi_robot::trial::{run_trial, TrialConfig, TrialResult};
+use rmi_robot::trial::{run_trial, TrialResult};
 
 mod common;
 use common::tiny;

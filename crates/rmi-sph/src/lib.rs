@@ -10,8 +10,9 @@
 //!   `V = (2 r)^3`; neighbour lists with cached `W` and `grad W`, built once per step;
 //! - porosity-aware densities, DFSPH factor, local porosity, saturation (Shepard-corrected);
 //! - one strongly coupled implicit CG over all velocities (viscosity, corotated elasticity,
-//!   drag from a permeability, capillary adhesion), preconditioned by block Jacobi plus a
-//!   coarse level on aggregates of particles (two-level deflation);
+//!   drag from a permeability, capillary adhesion), preconditioned by block Jacobi plus an
+//!   additive coarse correction on aggregates of particles (two-level,
+//!   `z = M^-1 r + Z E^-1 Z^T r` with `E = Z^T A Z`);
 //! - porosity-aware relaxed-Jacobi pressure solve with per-material tolerances;
 //! - compressible skeleton, static and kinematic rigid bodies with force read-back;
 //!   skeleton-body contacts as constraints of the implicit solves, Coulomb friction with

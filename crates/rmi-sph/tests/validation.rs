@@ -541,7 +541,8 @@ fn surface_retention_refined() {
 /// The same hung block with the sponges' own skeleton (phi = 0.7, k = 3e-11 m^2): free
 /// drainage is bounded by Darcy's superficial speed q = k rho g / mu through the bottom face,
 /// a few grams in 3 s, at r = 8 and 5 mm alike. (So the water a gripped sponge releases in a
-/// trial is pressed out, not drained; docs/benchmark-history.md.)
+/// trial is pressed out, not drained; docs/benchmark-history.md, "Surface retention
+/// validated; a gripped sponge releases more water than its pores close".)
 #[test]
 fn hung_sponge_drains_no_faster_than_darcy() {
     let material = PorousMaterial { porosity: 0.7, ..Default::default() };

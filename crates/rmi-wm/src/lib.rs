@@ -1,10 +1,11 @@
 //! Fused CPU inference of rmi's recurrent world models.
 //!
-//! A planner scores a handful of candidate command chunks against one history many times a
-//! second (issue target: 8 chunks of 32 steps in at most 5 ms on two cores). In eager torch
+//! A planner scores a handful of candidate command chunks against one history at every
+//! decision, within the latency target of docs/benchmarks.md ("World-model scoring latency").
+//! In eager torch
 //! each decoder step of AC-GRU-WM is about 20 small kernels at batch 8, and their dispatch,
 //! not their arithmetic, sets the time. This crate runs the whole free rollout of the
-//! GRU world models of `python/rmi_learn/models/gru.py` (history encoder, command encoder
+//! GRU world models of `python/rmi_learn/world_models/gru.py` (history encoder, command encoder
 //! E_u, GRU-cell decoder, heads, fed-back predictions) in one call, with the weights of a
 //! torch `state_dict`, so the Python side pays one crossing per scoring call.
 //!

@@ -1,6 +1,6 @@
 //! The GRU world model (AC-GRU-WM, State-GRU-WM) and its free rollout.
 //!
-//! Same equations as `GRUWorldModel.forward` in `python/rmi_learn/models/gru.py`, in
+//! Same equations as `GRUWorldModel.forward` in `python/rmi_learn/world_models/gru.py`, in
 //! standardised units: the encoder reads `[y * keep, m * keep]` over the history; the decoder
 //! starts from its final state per layer; its input at step tau is `[y, m, E_u(u_tau)]`, with
 //! the last observation and its mask at tau = 0 and afterwards the model's own prediction

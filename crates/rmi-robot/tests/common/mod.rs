@@ -1,6 +1,6 @@
 //! Configurations shared by the trial tests.
 
-use rmi_robot::trial::TrialConfig;
+use rmi_robot::config::TrialConfig;
 
 /// The 8 cm sponge at r = 10 mm (228 particles) with brief phases: every phase in about
 /// 1,300 steps.

@@ -253,7 +253,8 @@ pub struct PressureConfig {
     /// SPlisHSPlasH's DFSPH use 0.5). Larger values save iterations in fast flows (dam break:
     /// 3.5 -> 2.2 at 1.0) but the stopping test counts compression only, so a solve that
     /// starts above the answer can stop over-pressured: resting water then does not settle
-    /// (hydrostatic floor load 2.5 % off at 1.0; docs/benchmark-history.md).
+    /// (hydrostatic floor load 2.5 % off at 1.0; docs/benchmark-history.md, "Dam break: quiet
+    /// rounds and per-round ratios; two solver changes that did not pay").
     pub warm_start_factor: f64,
     /// Pass the pressure impulse through the implicit operator of the non-pressure solve
     /// (drag, adhesion, viscosity, elasticity) within the step, so that pore water seeps at
@@ -346,9 +347,9 @@ pub struct SimConfig {
     /// Neighbour grid: cells of size `H / neighbour_reach`, searched `neighbour_reach` cells to
     /// each side (1, 2 or 3). The neighbour sets are the same for every value; their order, and
     /// so the last bits of every sum over them, is not. With the AVX2 scan, 1 (27 cells of
-    /// size H) is the fastest for water-only scenes (dam-break list build 13 % faster than
-    /// with 2) and 2 as fast as 1 for sponges; the default 2 keeps the bits of the runs made
-    /// before the choice existed.
+    /// size H) is the fastest for water-only scenes and 2 as fast as 1 for sponges
+    /// (docs/benchmark-history.md, "Dam break: a four-wide neighbour scan"); the default 2
+    /// keeps the bits of the runs made before the choice existed.
     pub neighbour_reach: u32,
     /// Reproduce the reference code's elasticity (trace term without lambda).
     pub elasticity_reference_trace: bool,

@@ -339,8 +339,9 @@ unsafe fn emit_avx2(ch: &mut NbChunk, grid: &Grid, kernel: &CubicKernel, xa: &Ve
         // SAFETY: the slots index the grid's points, which each coordinate array and the
         // sorted indices hold; the stores stay below base + m + 3, within the reserved capacity.
         unsafe {
-            // Four scalar loads per coordinate rather than a gather instruction: measured a
-            // few per cent faster on the Zen 3 machine of docs/benchmark-history.md.
+            // Four scalar loads per coordinate rather than a gather instruction: the faster
+            // of the two on the project's Zen 3 machine (docs/benchmark-history.md, "The list
+            // build, cheaper by a fifth").
             let lanes = |a: &[f64]| {
                 _mm256_set_pd(*a.get_unchecked(s3), *a.get_unchecked(s2), *a.get_unchecked(s1), *a.get_unchecked(s0))
             };

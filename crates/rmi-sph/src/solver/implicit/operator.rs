@@ -18,10 +18,12 @@ use std::sync::Arc;
 /// Free skeleton particles from which [`Preconditioner::Auto`] uses the two-level
 /// preconditioner. Assembling and factoring `E` costs about three CG iterations, once every
 /// `cg.coarse_steps` steps; the two-level CG saves about 40 % of the iterations on a fine
-/// skeleton (16,000 particles at r = 2.5 mm) and about a tenth of the step time on the
-/// medium sponge at r = 5 mm (2,000), below this threshold, which is kept so that the
-/// results of smaller scenes stay as they were (docs/benchmark-history.md). Trials resolve
-/// `auto` to block Jacobi themselves (`TrialConfig::sim_config`).
+/// skeleton (16,000 particles at r = 2.5 mm) and also shortens the step of the medium
+/// sponge at r = 5 mm (2,000), below this threshold, which is kept so that the results of
+/// smaller scenes stay as they were (docs/benchmark-history.md, "Porous anchor: a two-level
+/// preconditioner for the implicit CG" and "The two-level preconditioner applied additively,
+/// its coarse matrix kept for ten steps"). Trials resolve `auto` to block Jacobi themselves
+/// (`TrialConfig::sim_config`).
 pub const TWO_LEVEL_MIN_SOLIDS: usize = 4000;
 
 /// Settings resolved from the config.

@@ -283,7 +283,8 @@ mod tests {
     /// contacts constraints of the implicit system): a step's pressure response is close to
     /// the last one's, so starting from it saves most of the CG's iterations, and the step ends
     /// where a response solved from zero ends. The guess this one replaced (the increment plus
-    /// the last drag correction) does not meet the bound (docs/benchmark-history.md).
+    /// the last drag correction) does not meet the bound (docs/benchmark-history.md, "The
+    /// pressure response starts from the last one").
     #[test]
     fn pressure_response_starts_from_the_last_one() {
         let mut cfg = presets::sponge([0.06, 0.06, 0.1], 0.6, 0.005);

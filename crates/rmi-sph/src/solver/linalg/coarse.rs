@@ -22,7 +22,8 @@
 //! and one envelope solve ([`Skyline`]). The deflation variants (A-DEF2), which keep the
 //! residual orthogonal to the coarse space, save a few per cent of the iterations here but
 //! need the rows of `A Z` every step and a product with them every iteration, which cost
-//! more than those iterations (docs/benchmark-history.md).
+//! more than those iterations (docs/benchmark-history.md, "The two-level preconditioner
+//! applied additively, its coarse matrix kept for ten steps").
 
 use crate::solver::linalg::skyline::Skyline;
 use nalgebra::{Matrix3, Vector3};
