@@ -5,7 +5,8 @@
 //! the implicit solve's operator rows and set-up, the skeleton's rotations and stresses) run
 //! through [`hot`], which on CPUs with AVX2 and FMA (x86-64-v3: Intel Haswell and AMD
 //! Excavator/Zen onwards) executes a copy compiled for those features: wider registers and
-//! three-operand instructions (figures in docs/benchmarks.md). A closure reaches that copy
+//! three-operand instructions (measured in docs/benchmark-history.md, "CPU dispatch,
+//! fluid-pair densities, empty-cell skip for walls"). A closure reaches that copy
 //! only when every closure between it and [`hot`] is inlined: a non-inlined adapter leaves
 //! the loop body compiled for the baseline CPU without any error or warning.
 //!
