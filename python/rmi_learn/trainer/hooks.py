@@ -3,12 +3,19 @@ of the weights (:class:`EMA`)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import torch
 
-if TYPE_CHECKING:
-    from rmi_learn.trainer.loop import Trainer
+from rmi_learn.trainer.config import TrainState
+
+
+class Trainer(Protocol):
+    """What a hook sees of the training loop (:class:`rmi_learn.trainer.loop.Trainer`): the
+    model being trained and the loop's position."""
+
+    model: torch.nn.Module
+    state: TrainState
 
 
 class Hook:
