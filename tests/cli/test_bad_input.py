@@ -193,6 +193,72 @@ def test_train_wm_names_a_truncated_frames_file(
     assert not out.exists()
 
 
+#: How each training command is started on a dataset, and its output directory's option.
+TRAINING = {
+    "train-wm": ["train-wm", "--model", "ac-gru"],
+    "train-policy": ["train-policy", "--objective", "flow", "--channels", "8,16,32"],
+}
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "says"),
+    [
+        ("z_std", 0.0, "statistics field 'z_std' must be finite and > 0"),
+        ("u_mean", float("nan"), "statistics field 'u_mean' must be finite"),
+    ],
+    ids=["zero-std", "nan-mean"],
+)
+@pytest.mark.parametrize("command", sorted(TRAINING))
+def test_training_names_statistics_that_would_train_on_nan(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    synthetic_dataset_dir: Path,
+    command: str,
+    field: str,
+    value: float,
+    says: str,
+) -> None:
+    """A hand-edited ``stats.json`` of the dataset: one line naming it and the field, and no
+    run directory (not a non-finite loss after the run's files were written)."""
+    data = tmp_path / "ds"
+    shutil.copytree(synthetic_dataset_dir, data)
+    stats = json.loads((data / "stats.json").read_text())
+    stats[field][0] = value
+    (data / "stats.json").write_text(json.dumps(stats))
+    out = tmp_path / "run"
+    argv = [*TRAINING[command], "--data", str(data), "--out", str(out), "--debug", "--no-progress"]
+    assert main(argv) == 2
+    line = one_line(capsys, command)
+    assert str(data / "stats.json") in line and says in line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("model", "arg", "says"),
+    [
+        ("transformer", "d_model=-5", "transformer: d_model must be a whole number >= 1, got -5"),
+        ("transformer", "nhead=7", "transformer: d_model must be a multiple of nhead"),
+        ("ac-gru", "hidden=-5", "ac-gru: hidden must be a whole number >= 1, got -5"),
+        ("ac-mlp", "hidden=0", "ac-mlp: hidden must be a whole number >= 1, got 0"),
+        ("arx", "horizon=-1", "arx: horizon must be a whole number >= 1, got -1"),
+    ],
+)
+def test_train_wm_names_a_model_argument_out_of_range(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    synthetic_dataset_dir: Path,
+    model: str,
+    arg: str,
+    says: str,
+) -> None:
+    """Every kind of model checks its ``--model-arg`` values the same way, before training."""
+    out = tmp_path / "run"
+    argv = ["train-wm", "--model", model, "--model-arg", arg, "--data", str(synthetic_dataset_dir)]
+    assert main([*argv, "--out", str(out), "--debug", "--no-progress"]) == 2
+    assert says in one_line(capsys, "train-wm")
+    assert not out.exists()
+
+
 @pytest.fixture(scope="module")
 def trained_run(tmp_path_factory: pytest.TempPathFactory, synthetic_dataset_dir: Path) -> Path:
     """A world-model run of one short epoch (the ARX model: the fastest to train)."""

@@ -288,3 +288,39 @@ def test_bad_inputs_exit_2_with_a_message(
     rc, err = _cli(capsys, bad, chunks, tmp_path / "cl_bad")
     assert rc == 2 and "refused by this engine" in err and "bogus" in err
     assert not (out / WINDOWS_FILE).exists()
+
+
+def test_a_second_run_into_one_out_is_refused_naming_the_lock(
+    sweep_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Each run rewrites the whole checkpoint: while one writes ``--out`` (it holds the
+    lock) another is refused with one line naming the lock, status 1 as for a locked sweep,
+    and writes nothing; once the lock is free the same call runs."""
+    fcntl = pytest.importorskip("fcntl")
+    out = tmp_path / "cl"
+    out.mkdir()
+    chunks = write_chunks(tmp_path / "chunks", sweep_dir, (ANCHORS[0],))
+    lock = out / ".closed-loop.lock"
+    with open(lock, "a+b") as held:
+        fcntl.flock(held.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        rc, err = _cli(capsys, sweep_dir, chunks, out)
+    assert rc == 1 and err.splitlines() == [
+        f"rmi closed-loop: another closed-loop is writing {out} (lock {lock})"
+    ]
+    assert sorted(p.name for p in out.iterdir()) == [lock.name]
+    rc, _ = _cli(capsys, sweep_dir, chunks, out)
+    assert rc == 0 and (out / WINDOWS_FILE).exists()
+
+
+def test_a_truncated_index_is_one_line(
+    sweep_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad = tmp_path / "sweep"
+    shutil.copytree(sweep_dir, bad)
+    index = bad / "index.parquet"
+    index.write_bytes(index.read_bytes()[: index.stat().st_size // 2])
+    chunks = write_chunks(tmp_path / "chunks", sweep_dir, (ANCHORS[0],))
+    rc, err = _cli(capsys, bad, chunks, tmp_path / "cl")
+    lines = err.splitlines()
+    assert rc == 2 and len(lines) == 1 and f"{index} is not readable" in lines[0], lines
+    assert not (tmp_path / "cl").exists()

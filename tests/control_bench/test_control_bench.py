@@ -433,3 +433,57 @@ def test_every_executed_chunk_is_kept_with_every_scorers_forecast(
 def _mkdir(path: Path) -> Path:
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def _argv(inputs: dict[str, Path], out: Path, **replace: Path) -> list[str]:
+    paths = {n: replace.get(n, inputs[n]) for n in ("runs", "data", "wm", "policy")}
+    return (
+        ["control-bench"]
+        + [a for n, p in paths.items() for a in (f"--{n}", str(p))]
+        + ["--out", str(out), "--no-progress", "--states-per-size", "1", "--goals-per-state",
+           "0", "--setpoints", "2", "--k", "1", "--receding", "0",
+           "--controllers", "first-sample"]
+    )  # fmt: skip
+
+
+def test_a_second_run_into_one_out_is_refused_naming_the_lock(
+    inputs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Each run rewrites the whole checkpoint, so two runs into one ``--out`` at once (say
+    ``--sizes 8`` and ``--sizes 10``, a documented way to extend a run) would keep only the
+    rows of the last to write: while one holds the lock another is refused with one line
+    naming it, status 1 as for a locked sweep, and writes nothing."""
+    fcntl = pytest.importorskip("fcntl")
+    out = tmp_path / "o"
+    out.mkdir()
+    lock = out / ".control-bench.lock"
+    with open(lock, "a+b") as held:
+        fcntl.flock(held.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        assert main(_argv(inputs, out)) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"rmi control-bench: another control-bench is writing {out} (lock {lock})"]
+    assert sorted(p.name for p in out.iterdir()) == [lock.name]
+
+
+def test_a_truncated_index_and_a_policy_config_of_the_wrong_kind_are_one_line(
+    inputs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    runs = tmp_path / "sweep"
+    runs.mkdir()
+    index = runs / "index.parquet"
+    data = (inputs["runs"] / "index.parquet").read_bytes()
+    index.write_bytes(data[: len(data) // 2])
+    pol = tmp_path / "policy" / "flow"
+    shutil.copytree(inputs["policy"] / "flow", pol)
+    cfg = json.loads((pol / "config.json").read_text())
+    cfg["model"]["unet"]["channels"] = "16,32"
+    (pol / "config.json").write_text(json.dumps(cfg))
+    for replace, needle in (
+        ({"runs": runs}, f"{index} is not readable"),
+        ({"policy": pol.parent}, f"{pol / 'config.json'}: model.unet field 'channels' must be"),
+    ):
+        out = tmp_path / "o"
+        assert main(_argv(inputs, out, **replace)) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("rmi control-bench: ") and needle in err[0], err
+        assert not out.exists()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -48,7 +49,7 @@ from rmi_learn.data.schema import (
     OBS,
 )
 from rmi_learn.data.synthetic import simulate_toy_run
-from rmi_learn.errors import RunFileError
+from rmi_learn.errors import InputError, RunFileError
 
 torch = pytest.importorskip("torch")
 torch.set_num_threads(1)
@@ -460,6 +461,35 @@ def test_stats_roundtrip_numpy_and_torch() -> None:
     u = torch.zeros(3, 1, dtype=torch.float64)
     np.testing.assert_allclose(st.destandardise_u(u).numpy(), np.tile(st.u_mean, (3, 1)))
     assert Stats.from_json(json.loads(json.dumps(st.to_json()))).z_std.tolist() == st.z_std.tolist()
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "says"),
+    [
+        ("z_std", 0.0, "statistics field 'z_std' must be finite and > 0"),
+        ("u_std", -1.0, "statistics field 'u_std' must be finite and > 0"),
+        ("z_mean", float("nan"), "statistics field 'z_mean' must be finite"),
+        ("u_mean", float("inf"), "statistics field 'u_mean' must be finite"),
+        ("z_mean", "x", "could not convert"),
+        ("u_std", None, "statistics field 'u_std' is missing"),
+    ],
+)
+def test_statistics_that_would_standardise_to_nan_are_named(
+    synthetic_dataset_dir: Path, tmp_path: Path, field: str, value: Any, says: str
+) -> None:
+    """A hand-edited ``stats.json`` whose standardisation would divide by zero or shift by
+    NaN (and so train on NaN) is refused when the dataset is opened, naming the file."""
+    data = tmp_path / "ds"
+    shutil.copytree(synthetic_dataset_dir, data)
+    stats = json.loads((data / "stats.json").read_text())
+    if value is None:
+        del stats[field]
+    else:
+        stats[field][0] = value
+    (data / "stats.json").write_text(json.dumps(stats))
+    with pytest.raises(InputError, match=re.escape(says)) as err:
+        load_dataset(data)
+    assert str(err.value).startswith(f"{data / 'stats.json'}: ")
 
 
 # --------------------------------------------------------------------------------------

@@ -103,3 +103,9 @@ def test_parquet_bytes_are_what_polars_writes_to_a_file(tmp_path: Path) -> None:
     table = pl.DataFrame({"a": [1.5, float("nan"), 3.0], "b": ["x", "y", "z"]})
     table.write_parquet(tmp_path / "t.parquet")
     assert staging.parquet_bytes(table) == (tmp_path / "t.parquet").read_bytes()
+    # With key-value metadata, as the checkpoints of closed-loop and control-bench carry it.
+    meta = {"rmi.fingerprint": "abc"}
+    table.write_parquet(tmp_path / "m.parquet", metadata=meta)
+    data = staging.parquet_bytes(table, meta)
+    assert data == (tmp_path / "m.parquet").read_bytes()
+    assert pl.read_parquet_metadata(tmp_path / "m.parquet")["rmi.fingerprint"] == "abc"

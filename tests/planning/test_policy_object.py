@@ -252,6 +252,23 @@ def test_clear_errors_for_runs_without_statistics_and_mismatched_world_models(
     assert load_policy(old, scorer=STORED).ranked
 
 
+@pytest.mark.parametrize("field", ["z_mean", "u_mean"])
+def test_a_run_whose_mean_is_not_finite_is_refused_not_an_all_nan_chunk(
+    runs: dict[str, Any], tmp_path: Path, field: str
+) -> None:
+    """A NaN mean would standardise every input (or destandardise every action) to NaN:
+    the run is refused when loaded, naming its directory and the field."""
+    run = tmp_path / "nan-mean"
+    shutil.copytree(runs["run"], run)
+    cfg = json.loads((run / "config.json").read_text())
+    cfg["extra"]["stats"][field][0] = float("nan")
+    (run / "config.json").write_text(json.dumps(cfg))
+    with pytest.raises(InputError, match=f"{re.escape(str(run))}: statistics field '{field}' "
+                       "must be finite") as err:  # fmt: skip
+        load_policy(run)
+    assert "\n" not in str(err.value)
+
+
 def _example() -> Any:
     spec = importlib.util.spec_from_file_location("policy_in_env", EXAMPLE)
     assert spec is not None and spec.loader is not None
@@ -306,5 +323,9 @@ def test_statistics_give_the_action_channels(runs: dict[str, Any]) -> None:
         parse_stats({**stats, "z_names": stats["z_names"][::-1]}, 1, "run")
     with pytest.raises(InputError, match="'u_std' must be finite and > 0"):
         parse_stats({**stats, "u_std": [0.0]}, 1, "run")
+    with pytest.raises(InputError, match="'u_mean' must be finite"):
+        parse_stats({**stats, "u_mean": [float("nan")]}, 1, "run")
+    with pytest.raises(InputError, match="'z_mean' must be finite"):
+        parse_stats({**stats, "z_mean": [float("inf"), *stats["z_mean"][1:]]}, 1, "run")
     with pytest.raises(InputError, match="'z_mean' missing"):
         parse_stats({k: v for k, v in stats.items() if k != "z_mean"}, 1, "run")

@@ -233,6 +233,36 @@ def test_distill_cli_writes_a_two_step_student_and_refuses_bad_input(
     assert err.count("\n") == 2 and "rmi distill-policy:" in err
 
 
+def test_distill_refuses_a_dataset_the_teacher_was_not_trained_on(
+    synthetic_dataset_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The teacher's chunks are its own only for inputs standardised by its statistics: a
+    dataset of other statistics is one line naming both, and no student is written; the
+    dataset it was trained on is accepted."""
+    from rmi_learn.cli import main
+    from rmi_learn.data.dataset import load_dataset
+
+    stats = load_dataset(synthetic_dataset_dir).stats.to_json()
+    teacher = _policy_run(tmp_path / "teacher", "flow")
+    cfg = json.loads((teacher / "config.json").read_text())
+    args = ["distill-policy", "--policy", str(teacher), "--dataset", str(synthetic_dataset_dir),
+            "--epochs", "1", "--max-windows", "8", "--val-windows", "4",
+            "--no-progress"]  # fmt: skip
+    cfg["extra"]["stats"] = {**stats, "z_mean": [v + 1.0 for v in stats["z_mean"]]}
+    (teacher / "config.json").write_text(json.dumps(cfg))
+    assert main([*args, "--out", str(tmp_path / "other")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0] == (
+        f"rmi distill-policy: {teacher} was trained with other statistics than "
+        f"{synthetic_dataset_dir}"
+    )
+    assert not (tmp_path / "other").exists()
+    cfg["extra"]["stats"] = stats
+    (teacher / "config.json").write_text(json.dumps(cfg))
+    assert main([*args, "--out", str(tmp_path / "same")]) == 0
+    assert (tmp_path / "same" / "config.json").exists()
+
+
 def test_loader_reports_bad_inputs_as_input_errors(
     synthetic_dataset_dir: Path, tmp_path: Path
 ) -> None:

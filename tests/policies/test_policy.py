@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -110,6 +111,30 @@ def test_time_embedding_resolves_flow_time_only_when_scaled() -> None:
 def test_config_round_trip() -> None:
     cfg = UNetConfig(channels=(8, 16, 32), horizon=16)
     assert UNetConfig.from_dict(cfg.to_dict()) == cfg
+
+
+@pytest.mark.parametrize(
+    ("change", "says"),
+    [
+        ({"channels": "abc"}, "field 'channels' must be a non-empty list of whole numbers >= 1"),
+        ({"channels": 64}, "field 'channels' must be a non-empty list of whole numbers >= 1"),
+        ({"channels": []}, "field 'channels' must be a non-empty list of whole numbers >= 1"),
+        ({"channels": [8, -16]}, "field 'channels' must be a non-empty list"),
+        ({"horizon": "32"}, "field 'horizon' must be a whole number >= 1, got '32'"),
+        ({"n_groups": 0}, "field 'n_groups' must be a whole number >= 1, got 0"),
+        ({"goal_dim": True}, "field 'goal_dim' must be a whole number >= 1, got True"),
+        ({"width": 3}, "unknown field(s) ['width']"),
+    ],
+)
+def test_a_config_from_a_file_names_the_field_it_cannot_use(
+    change: dict[str, object], says: str
+) -> None:
+    """``config.json`` is the user's file: a field of the wrong kind is a ValueError naming
+    it, not a TypeError from deep inside the network's constructor."""
+    with pytest.raises(ValueError, match=re.escape(says)):
+        UNetConfig.from_dict({**UNetConfig().to_dict(), **change})
+    with pytest.raises(ValueError, match="unet must be an object"):
+        UNetConfig.from_dict([64, 128])
 
 
 # ---------------------------------------------------------------- diffusion

@@ -6,8 +6,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import polars as pl
 import pytest
 
+from rmi_learn.data.sweep import INDEX_FILE
 from rmi_learn.errors import InputError
 from rmi_learn.sim.replay import ReplayError, RunTrack, anchor_step, control_substeps, load_index
 
@@ -36,4 +38,18 @@ def test_anchor_step_maps_a_kept_row_to_engine_steps() -> None:
 def test_a_sweep_without_an_index_is_an_input_error(tmp_path: Path) -> None:
     with pytest.raises(ReplayError, match="index.parquet") as err:
         load_index(tmp_path)
+    assert isinstance(err.value, InputError)
+
+
+def test_a_truncated_index_is_named(tmp_path: Path) -> None:
+    """An index cut short (a copy that stopped, a full disk) is a ReplayError naming the
+    file and how to rebuild it, not a polars error."""
+    pl.DataFrame({"run_id": ["a"], "path": ["runs/a/run.parquet"]}).write_parquet(
+        tmp_path / INDEX_FILE
+    )
+    data = (tmp_path / INDEX_FILE).read_bytes()
+    (tmp_path / INDEX_FILE).write_bytes(data[: len(data) // 2])
+    with pytest.raises(ReplayError, match="rebuild it with rmi sweep --index-only") as err:
+        load_index(tmp_path)
+    assert str(err.value).startswith(f"{tmp_path / INDEX_FILE} is not readable")
     assert isinstance(err.value, InputError)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -85,6 +86,33 @@ def test_interface_shapes(kind: str) -> None:
             model(hist, mask, actions[:, :32])
     else:
         assert model(hist, mask, actions[:, :32])["z"].shape == (N, 32, 18)
+
+
+@pytest.mark.parametrize(
+    ("kind", "args", "says"),
+    [
+        ("transformer", {"d_model": -5}, "d_model must be a whole number >= 1, got -5"),
+        ("transformer", {"nhead": 3}, "d_model must be a multiple of nhead, got d_model=256 and"),
+        ("transformer", {"dropout": 1.5}, "dropout must be in [0, 1], got 1.5"),
+        ("transformer", {"ff": 0}, "ff must be a whole number >= 1, got 0"),
+        ("ac-gru", {"hidden": -5}, "hidden must be a whole number >= 1, got -5"),
+        ("state-gru", {"layers": 0}, "layers must be a whole number >= 1, got 0"),
+        ("ac-mlp", {"hidden": 2.5}, "hidden must be a whole number >= 1, got 2.5"),
+        ("arx", {"horizon": 0}, "horizon must be a whole number >= 1, got 0"),
+        ("arx", {"ridge": "big"}, "ridge must be a finite number, got 'big'"),
+        ("arx", {"causal": "yes"}, "causal must be true or false, got 'yes'"),
+        ("setpoint-readout", {"u_std": float("nan")}, "u_std must be a finite number, got nan"),
+        ("baseline", {"state_groups": 3}, "state_groups must be a name (text), got 3"),
+    ],
+)
+def test_every_model_refuses_arguments_of_the_wrong_kind_naming_them(
+    kind: str, args: dict[str, Any], says: str
+) -> None:
+    """``--model-arg`` values and a run's config.json reach the constructors: each kind of
+    model refuses a size below 1, a non-finite number or a value of another kind with a
+    ValueError naming the argument (the commands' one line), never a torch error."""
+    with pytest.raises(ValueError, match=re.escape(f"{kind}: {says}")):
+        build({"kind": kind, **args})
 
 
 def test_baseline_carries_latest_state() -> None:

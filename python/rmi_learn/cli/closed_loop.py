@@ -43,7 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Execute the windows and write the tables; 0 on success, 2 for unusable inputs."""
+    """Execute the windows and write the tables; 0 on success, 2 for unusable inputs, 1 when
+    another closed-loop writes ``--out``."""
     from rmi_learn.closed_loop import run_closed_loop
 
     # Inputs that cannot be executed raise ClosedLoopError, an input error (status 2).

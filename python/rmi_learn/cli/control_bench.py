@@ -151,7 +151,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the benchmark and write its tables; 0 on success, 2 for unusable inputs."""
+    """Run the benchmark and write its tables; 0 on success, 2 for unusable inputs, 1 when
+    another control-bench writes ``--out``."""
     import torch
 
     from rmi_learn.control_bench import run_control_bench

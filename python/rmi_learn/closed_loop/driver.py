@@ -38,6 +38,7 @@ from rmi_learn.closed_loop.windows import (
     select_windows,
 )
 from rmi_learn.data.checkpoint_rows import file_sha256
+from rmi_learn.data.output_lock import output_lock
 from rmi_learn.data.runs import atomic_write_bytes, atomic_write_json, json_safe
 from rmi_learn.data.schema import CONTROL_DT
 from rmi_learn.data.sweep import INDEX_FILE
@@ -49,6 +50,9 @@ from rmi_learn.sim.replay import (
     load_index,
     load_track,
 )
+
+#: The command name the closed loop locks its output directory under.
+LOCK_NAME = "closed-loop"
 
 
 @dataclass
@@ -305,25 +309,31 @@ def run_closed_loop(
     ``force`` (F_target, engine force regulation), the only mode.
     Windows already in ``out_dir/closed_loop_windows.parquet`` are not executed again.
     Returns the summary written to ``table_closed_loop.json``. Raises
-    :class:`ClosedLoopError` for unusable inputs.
+    :class:`ClosedLoopError` for unusable inputs, and
+    :class:`~rmi_learn.errors.StageFailure` when another closed-loop writes ``out_dir`` (it
+    holds ``OUT/.closed-loop.lock``): each run rewrites the whole checkpoint, so two at once
+    would lose one's rows.
     """
     _check_options(command, max_windows, threads)
     say = log or (lambda _msg: None)
     sweep, cdir, out = Path(sweep_dir), Path(chunks_dir), Path(out_dir)
     inputs = _load_inputs(sweep, cdir, max_windows)
     out.mkdir(parents=True, exist_ok=True)
-    ckpt = _open_checkpoint(out, cdir, inputs, command)
-    done = {(r["run_id"], r["t"]) for r in ckpt.rows}
-    windows = inputs.windows
-    pending = [w for w in windows if (w.run_id, w.t) not in done]
-    say(
-        f"closed-loop: {len(windows)} windows ({len(windows) - len(pending)} already done), "
-        f"objectives {sorted(inputs.chunks)}, command {command}"
-    )
-    wall = _execute(pending, inputs, command, threads, ckpt, progress)
-    options = {"command": command, "threads": threads, "max_windows": max_windows}
-    summary, info, payload = _payload(sweep, cdir, inputs, ckpt.rows, options, len(pending), wall)
-    _write_tables(out, summary, info, payload)
+    with output_lock(out, LOCK_NAME):
+        ckpt = _open_checkpoint(out, cdir, inputs, command)
+        done = {(r["run_id"], r["t"]) for r in ckpt.rows}
+        windows = inputs.windows
+        pending = [w for w in windows if (w.run_id, w.t) not in done]
+        say(
+            f"closed-loop: {len(windows)} windows ({len(windows) - len(pending)} already done), "
+            f"objectives {sorted(inputs.chunks)}, command {command}"
+        )
+        wall = _execute(pending, inputs, command, threads, ckpt, progress)
+        options = {"command": command, "threads": threads, "max_windows": max_windows}
+        summary, info, payload = _payload(
+            sweep, cdir, inputs, ckpt.rows, options, len(pending), wall
+        )
+        _write_tables(out, summary, info, payload)
     say(f"closed-loop: {len(pending)} windows executed in {wall:.1f} s -> {out}")
     return payload
 

@@ -52,6 +52,7 @@ from rmi_learn.control_bench.inputs import (
 )
 from rmi_learn.data.checkpoint_rows import file_sha256
 from rmi_learn.data.dataset import load_dataset
+from rmi_learn.data.output_lock import output_lock
 from rmi_learn.data.runs import atomic_write_bytes, atomic_write_json, json_safe
 from rmi_learn.data.schema import CONTROL_DT, FORCE_LIMIT_N
 from rmi_learn.planning.refine import METRICS
@@ -65,6 +66,8 @@ from rmi_learn.sim.replay import (
     load_track,
 )
 
+#: The command name the benchmark locks its output directory under.
+LOCK_NAME = "control-bench"
 TABLE_STEM = "table_control"
 FIGURE_FILE = "fig_control.png"
 SCORERS_FIGURE_FILE = "fig_control_scorers.png"
@@ -441,6 +444,55 @@ def _info(
     }
 
 
+def _run_sizes(
+    states: _States,
+    cands: Mapping[int, Sequence[Candidate]],
+    states_per_size: int,
+    seed: int,
+    progress: bool,
+) -> float:
+    """Run the start states of every size (see :meth:`_States.run_size`); returns the wall
+    time (s)."""
+    t_start = time.perf_counter()
+    bar = tqdm(desc="control-bench", unit="state", disable=not progress, dynamic_ncols=True)
+    try:
+        for size, cs in cands.items():
+            states.run_size(size, cs, states_per_size, seed, bar)
+    finally:
+        bar.close()
+    return time.perf_counter() - t_start
+
+
+def _objectives(s: Setup) -> list[str]:
+    """The policies in table order: the two objectives first, then any other by name."""
+    return [o for o in OBJECTIVES if o in s.policies] + sorted(set(s.policies) - set(OBJECTIVES))
+
+
+def _payload(
+    s: Setup,
+    cands: Mapping[int, Sequence[Candidate]],
+    states: _States,
+    info: Mapping[str, Any],
+    wall: float,
+    seed: int,
+    rank_names: Sequence[str],
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """The summary, the scorers' diagnostics and the payload of ``table_control.json``."""
+    summary = measures.summarise(states.rows, list(info["objectives"]), seed)
+    diag = measures.scorer_diagnostics(states.sample_rows, rank_names)
+    payload = {
+        **info,
+        "states": _states_info(s, cands, states.rows, str(info["split_used"])),
+        "summary": summary,
+        "scorer_diagnostics": diag,
+        "states_run_now": states.n_new,
+        "wall_s": wall,
+        "wall_s_per_state": wall / states.n_new if states.n_new else None,
+        "version": __version__,
+    }
+    return summary, diag, payload
+
+
 def _write_outputs(
     out_p: Path,
     payload: Any,
@@ -510,7 +562,9 @@ def run_control_bench(
     ``goal_kg``: extra goals (kg) for every state. States already in the checkpoint are not
     run again; a larger ``states_per_size`` extends it. Returns the summary written to
     ``table_control.json``. Raises :class:`ControlBenchError` for unusable inputs, before
-    anything is written."""
+    anything is written, and :class:`~rmi_learn.errors.StageFailure` when another
+    control-bench writes ``out`` (it holds ``OUT/.control-bench.lock``): each run rewrites
+    the whole checkpoint, so two at once would lose one's rows."""
     say = log or (lambda _m: None)
     _check_counts(states_per_size, goals_per_state, setpoints, k, receding, threads)
     runs_p, data_p, wm_p, pol_p, out_p = map(Path, (runs, data, wm, policy, out))
@@ -540,39 +594,18 @@ def run_control_bench(
         "receding_scorers": receding_scorers, "refine_scorers": refine_scorers,
         "refine_metrics": refine_metrics, "controllers": families,
     }  # fmt: skip
-    states = _States(s, ckpt, tracks, configs, split_used, threads, bench_options)
-    say(
-        f"control-bench: {sum(len(c) for c in cands.values())} candidate windows in "
-        f"{len(cands)} size(s), scorers {sorted(s.scorers)}, policies {sorted(s.policies)}"
-    )
-    t_start = time.perf_counter()
-    bar = tqdm(desc="control-bench", unit="state", disable=not progress, dynamic_ncols=True)
-    try:
-        for size, cs in cands.items():
-            states.run_size(size, cs, states_per_size, seed, bar)
-    finally:
-        bar.close()
-    wall = time.perf_counter() - t_start
-
-    objectives = [o for o in OBJECTIVES if o in s.policies] + sorted(
-        set(s.policies) - set(OBJECTIVES)
-    )
-    summary = measures.summarise(states.rows, objectives, seed)
-    diag = measures.scorer_diagnostics(states.sample_rows, rank_names)
-    where = {"runs": str(runs_p), "data": str(data_p), "wm": str(wm_p), "policy": str(pol_p)}
-    info = _info(where, split, split_used, states_per_size, options, threads, setpoints, s,
-                 rank_names, objectives)  # fmt: skip
-    payload = {
-        **info,
-        "states": _states_info(s, cands, states.rows, split_used),
-        "summary": summary,
-        "scorer_diagnostics": diag,
-        "states_run_now": states.n_new,
-        "wall_s": wall,
-        "wall_s_per_state": wall / states.n_new if states.n_new else None,
-        "version": __version__,
-    }
-    _write_outputs(out_p, payload, summary, info, diag, states, rank_names)
+    with output_lock(out_p, LOCK_NAME):
+        states = _States(s, ckpt, tracks, configs, split_used, threads, bench_options)
+        say(
+            f"control-bench: {sum(len(c) for c in cands.values())} candidate windows in "
+            f"{len(cands)} size(s), scorers {sorted(s.scorers)}, policies {sorted(s.policies)}"
+        )
+        wall = _run_sizes(states, cands, states_per_size, seed, progress)
+        where = {"runs": str(runs_p), "data": str(data_p), "wm": str(wm_p), "policy": str(pol_p)}
+        info = _info(where, split, split_used, states_per_size, options, threads, setpoints, s,
+                     rank_names, _objectives(s))  # fmt: skip
+        summary, diag, payload = _payload(s, cands, states, info, wall, seed, rank_names)
+        _write_outputs(out_p, payload, summary, info, diag, states, rank_names)
     say(f"control-bench: {states.n_new} start states run in {wall:.1f} s -> {out_p}")
     return payload
 

@@ -14,6 +14,7 @@ from typing import Any
 import polars as pl
 
 from rmi_learn.data.runs import atomic_write_bytes
+from rmi_learn.data.staging import parquet_bytes
 
 
 def file_sha256(path: Path) -> str:
@@ -39,9 +40,10 @@ def write_rows(
     schema: Mapping[str, Any],
     metadata: Mapping[str, str],
 ) -> None:
-    """Write the rows (see :func:`rows_frame`) to ``path`` atomically, with ``metadata``."""
-    frame = rows_frame(rows, schema)
-    atomic_write_bytes(path, lambda f: frame.write_parquet(f, metadata=dict(metadata)))
+    """Write the rows (see :func:`rows_frame`) to ``path`` atomically, with ``metadata``; a
+    write that fails (a full disk) raises its OSError naming ``path``."""
+    data = parquet_bytes(rows_frame(rows, schema), metadata)
+    atomic_write_bytes(path, lambda f: f.write(data))
 
 
 def read_rows(path: Path) -> tuple[dict[str, str], pl.DataFrame]:

@@ -235,9 +235,22 @@ class Stats:
             "u_std": self.u_std.tolist(),
         }
 
+    def check(self) -> None:
+        """Raise ValueError naming the field unless every mean is finite and every standard
+        deviation finite and > 0: anything else turns the standardised rows into NaN or
+        infinity, and a model trained or acting on them into NaN."""
+        for key in ("z_mean", "u_mean"):
+            if not np.all(np.isfinite(getattr(self, key))):
+                raise ValueError(f"statistics field {key!r} must be finite")
+        for key in ("z_std", "u_std"):
+            value = getattr(self, key)
+            if not np.all(np.isfinite(value) & (value > 0)):
+                raise ValueError(f"statistics field {key!r} must be finite and > 0")
+
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> Stats:
-        """Inverse of :meth:`to_json`; refuses statistics of other channel names."""
+        """Inverse of :meth:`to_json`; refuses statistics of other channel names and values
+        :meth:`check` refuses."""
         if list(d["z_names"]) != list(CONTINUOUS):
             raise ValueError("stats.json channel names differ from rmi_learn.data.schema")
         if list(d["u_names"]) != list(CONTROL_ACTIONS):
@@ -246,9 +259,25 @@ class Stats:
                 f"{list(CONTROL_ACTIONS)} (force setpoints): rebuild the dataset with "
                 "`rmi dataset` and retrain the models on it"
             )
-        return cls(
+        stats = cls(
             *(np.asarray(d[k], dtype=np.float64) for k in ("z_mean", "z_std", "u_mean", "u_std"))
         )
+        stats.check()
+        return stats
+
+
+def read_stats(path: Path) -> Stats:
+    """The statistics file of a built dataset (``stats.json``, see :meth:`Stats.from_json`);
+    one that is not the statistics of a built dataset of this version (another channel, a
+    missing field, a value :meth:`Stats.check` refuses) raises
+    :class:`~rmi_learn.errors.InputError` naming it."""
+    d = json.loads(path.read_text())
+    try:
+        return Stats.from_json(d)
+    except KeyError as exc:
+        raise InputError(f"{path}: statistics field {exc} is missing") from exc
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{path}: {exc}") from exc
 
 
 def compute_stats(z: np.ndarray, u: np.ndarray) -> Stats:
@@ -467,7 +496,7 @@ class Dataset:
         if not isinstance(self.info, dict) or self.info.get("format") != FORMAT_VERSION:
             got = self.info.get("format") if isinstance(self.info, dict) else self.info
             raise ValueError(f"{info_path}: dataset format {got!r} != {FORMAT_VERSION}")
-        self.stats = Stats.from_json(json.loads((self.root / "stats.json").read_text()))
+        self.stats = read_stats(self.root / "stats.json")
         self.runs = read_table(self.root / "runs.parquet", ("run", "run_id", "split"))
         self.frames = read_table(self.root / "frames.parquet", ("run", "t", "segment", *OBS))
         f = self.frames

@@ -15,6 +15,7 @@ import re
 import shutil
 import socket
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 from typing import NoReturn
 
@@ -127,12 +128,16 @@ def raise_named_for(exc: OSError, tmp: Path, dest: Path) -> NoReturn:
     raise OSError(exc.errno, exc.strerror, str(where)) from exc
 
 
-def parquet_bytes(table: pl.DataFrame) -> bytes:
-    """``table`` as Parquet bytes. Encoded in memory so that a failing write (a full disk)
-    raises its OSError from Python: polars reports one of its own writes as a ComputeError
-    that loses the error number."""
+def parquet_bytes(table: pl.DataFrame, metadata: Mapping[str, str] | None = None) -> bytes:
+    """``table`` as Parquet bytes, with the key-value ``metadata`` in the file's footer if
+    given. Encoded in memory so that a failing write (a full disk) raises its OSError from
+    Python: polars reports one of its own writes as a ComputeError that loses the error
+    number."""
     buf = io.BytesIO()
-    table.write_parquet(buf)
+    if metadata is None:
+        table.write_parquet(buf)
+    else:
+        table.write_parquet(buf, metadata=dict(metadata))
     return buf.getvalue()
 
 

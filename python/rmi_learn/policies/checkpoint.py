@@ -62,15 +62,20 @@ def load_policy(
     """Rebuild a trained policy: (network in eval mode, objective, config.json).
 
     ``weights`` names the safetensors file without suffix: ``model.ema`` (default, the
-    sampling weights) or ``model`` (live weights of the selected epoch).
+    sampling weights) or ``model`` (live weights of the selected epoch). A ``model.unet``
+    field of the wrong kind raises ValueError naming the config file and the field.
     """
-    from rmi_learn.trainer import load_weights, read_config
+    from rmi_learn.trainer import CONFIG_FILE, load_weights, read_config
 
     cfg = read_config(out_dir)
     m = cfg["model"]
     if m.get("kind") != "policy-unet":
         raise ValueError(f"{out_dir} is not a policy run (model kind {m.get('kind')!r})")
-    net = PolicyUNet(UNetConfig.from_dict(m["unet"]))
+    try:
+        unet = UNetConfig.from_dict(m["unet"])
+    except ValueError as exc:
+        raise ValueError(f"{Path(out_dir) / CONFIG_FILE}: model.{exc}") from exc
+    net = PolicyUNet(unet)
     load_weights(net, out_dir, which=weights)
     objective = make_objective(m["objective"], **m["objective_config"])
     return net.to(device).eval(), objective, cfg

@@ -117,8 +117,9 @@ def distill_policy(
     ``teacher_steps`` overrides the teacher's sampler steps (default: its run's, 16 DDIM or
     20 Euler); ``weights`` names the teacher's weights file. Raises
     :class:`~rmi_learn.errors.InputError` for a teacher that is not a policy run or whose
-    weights do not load, a dataset without training or validation windows, a step count
-    outside 1..2, or an ``out`` that already holds a run.
+    weights do not load, a dataset it was not trained on (other statistics), a dataset
+    without training or validation windows, a step count outside 1..2, or an ``out`` that
+    already holds a run.
     """
     import copy
 
@@ -127,6 +128,7 @@ def distill_policy(
     from rmi_learn.data.dataset import load_dataset
     from rmi_learn.policies.checkpoint import load_policy, make_objective, model_config
     from rmi_learn.policies.fast_sampler import FastSampler, schedule
+    from rmi_learn.policies.policy import check_trained_on
     from rmi_learn.trainer import CONFIG_FILE, save_weights
 
     if steps not in (1, 2):
@@ -142,6 +144,8 @@ def distill_policy(
     history = int(m["history"])
     size_cm = (tcfg.get("extra") or {}).get("size_cm")
     ds = load_dataset(dataset)
+    # The teacher's chunks are only its own for inputs standardised as in its training.
+    check_trained_on(policy, tcfg, ds.stats.to_json(), dataset)
     horizon = teacher.config.horizon
     train = ds.windows("train", size_cm, history=history, horizon=horizon)
     val = ds.windows("val", size_cm, history=history, horizon=horizon)

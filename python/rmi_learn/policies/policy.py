@@ -65,8 +65,9 @@ def parse_stats(d: Any, action_dim: int, where: str) -> tuple[Stats, tuple[str, 
 
     The observation channels must be ``schema.CONTINUOUS`` (the policy reads the history in
     that order); the action channels are whatever the run was trained on, ``action_dim`` of
-    them (the network's output width). Standard deviations must be finite and positive.
-    Raises :class:`~rmi_learn.errors.InputError` naming ``where`` otherwise.
+    them (the network's output width). Means must be finite, standard deviations finite
+    and positive (:meth:`~rmi_learn.data.dataset.Stats.check`). Raises
+    :class:`~rmi_learn.errors.InputError` naming ``where`` otherwise.
     """
     arrays = _stats_arrays(d, where)
     z_names = list(d.get("z_names", CONTINUOUS))
@@ -83,10 +84,12 @@ def parse_stats(d: Any, action_dim: int, where: str) -> tuple[Stats, tuple[str, 
             f"{where}: statistics of {len(u_names)} action channels {list(u_names)}, the "
             f"network outputs {action_dim}"
         )
-    for key in ("z_std", "u_std"):
-        if not np.all(np.isfinite(arrays[key]) & (arrays[key] > 0)):
-            raise InputError(f"{where}: statistics field {key!r} must be finite and > 0")
-    return Stats(**arrays), u_names
+    stats = Stats(**arrays)
+    try:
+        stats.check()
+    except ValueError as exc:
+        raise InputError(f"{where}: {exc}") from exc
+    return stats, u_names
 
 
 def _same_stats(a: Any, b: Any) -> bool:
@@ -127,9 +130,25 @@ def run_stats(
         from_dataset = load_dataset(dataset).stats.to_json()
     except (FileNotFoundError, ValueError) as exc:
         raise InputError(exc) from exc
-    if stored is not None and not _same_stats(stored, from_dataset):
-        raise InputError(f"{run_dir} was trained with other statistics than {dataset}")
+    check_trained_on(run_dir, config, from_dataset, dataset)
     return from_dataset
+
+
+def check_trained_on(
+    run_dir: str | os.PathLike[str],
+    config: Mapping[str, Any],
+    dataset_stats: Mapping[str, Any],
+    dataset: Any,
+) -> None:
+    """Refuse a policy run (its ``config.json`` is ``config``) whose stored statistics are
+    not those of the dataset ``dataset`` (its ``Stats.to_json()`` is ``dataset_stats``): its
+    network would be fed inputs standardised by other statistics. A run written before
+    the statistics were stored cannot be checked and passes. Raises
+    :class:`~rmi_learn.errors.InputError` naming both."""
+    extra = config.get("extra") or {}
+    stored = extra.get("stats") if isinstance(extra, Mapping) else None
+    if stored is not None and not _same_stats(stored, dataset_stats):
+        raise InputError(f"{run_dir} was trained with other statistics than {dataset}")
 
 
 # --------------------------------------------------------------------------------------
@@ -204,6 +223,7 @@ __all__ = [
     "STORED",
     "WORLD_MODEL_DIR",
     "attach_world_model",
+    "check_trained_on",
     "check_world_model",
     "parse_stats",
     "run_stats",

@@ -16,7 +16,8 @@ skips before stride-2 downsampling; the up path concatenates them. The condition
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields
 from typing import cast
 
 import torch
@@ -45,12 +46,31 @@ class UNetConfig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict[str, object]) -> UNetConfig:
-        """Inverse of :meth:`to_dict`; unknown keys are rejected."""
-        kw = dict(d)
-        if "channels" in kw:
-            kw["channels"] = tuple(kw["channels"])  # type: ignore[arg-type]
+    def from_dict(cls, d: object) -> UNetConfig:
+        """Inverse of :meth:`to_dict`. A value that is not a whole number >= 1 (``channels``:
+        a non-empty list of them) and an unknown key raise ValueError naming the field:
+        the dict comes from a run's ``config.json``."""
+        if not isinstance(d, Mapping):
+            raise ValueError(f"unet must be an object of UNet fields, got {d!r}")
+        unknown = sorted(set(d) - {f.name for f in fields(cls)})
+        if unknown:
+            raise ValueError(f"unet: unknown field(s) {unknown}")
+        kw: dict[str, object] = {}
+        for name, value in d.items():
+            if name == "channels":
+                ok = isinstance(value, (list, tuple)) and bool(value) and all(map(_whole, value))
+                want = "a non-empty list of whole numbers >= 1"
+            else:
+                ok, want = _whole(value), "a whole number >= 1"
+            if not ok:
+                raise ValueError(f"unet field {name!r} must be {want}, got {value!r}")
+            kw[name] = tuple(value) if name == "channels" else value  # type: ignore[arg-type]
         return cls(**kw)  # type: ignore[arg-type]
+
+
+def _whole(value: object) -> bool:
+    """Whether ``value`` is a whole number >= 1 (not a bool)."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 1
 
 
 def sinusoidal_embedding(t: Tensor, dim: int) -> Tensor:

@@ -67,12 +67,19 @@ class RunTrack:
 
 
 def load_index(sweep_dir: str | os.PathLike[str]) -> dict[str, Path]:
-    """Run id -> run file path of every completed run of a sweep (``index.parquet``)."""
+    """Run id -> run file path of every completed run of a sweep (``index.parquet``); an
+    index that is missing, unreadable (cut short) or lacks its columns raises
+    :class:`ReplayError` naming it."""
     root = Path(sweep_dir)
     index = root / INDEX_FILE
     if not index.exists():
         raise ReplayError(f"--runs {root} has no {INDEX_FILE} (give a sweep output directory)")
-    df = pl.read_parquet(index)
+    try:
+        df = pl.read_parquet(index)
+    except (OSError, pl.exceptions.PolarsError) as exc:
+        raise ReplayError(
+            f"{index} is not readable ({exc}); rebuild it with rmi sweep --index-only"
+        ) from exc
     for col in ("run_id", "path"):
         if col not in df.columns:
             raise ReplayError(f"{index} has no {col!r} column")

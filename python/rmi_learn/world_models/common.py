@@ -23,6 +23,9 @@ when group C is kept: the ablated model is a world model *of that state*.
 
 from __future__ import annotations
 
+import inspect
+import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -108,6 +111,36 @@ def last_z(hist: torch.Tensor) -> torch.Tensor:
     return hist[:, -1, list(CONTINUOUS_INDEX)]
 
 
+def constructor_defaults(cls: type) -> dict[str, Any]:
+    """The default values of the constructor arguments of ``cls``: those of the nearest
+    ``__init__`` in its class hierarchy that names its arguments (one that only passes
+    ``**kw`` on to its base is skipped)."""
+    for klass in cls.__mro__:
+        init = klass.__dict__.get("__init__")
+        if init is None:
+            continue
+        params = inspect.signature(init).parameters.values()
+        if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params):
+            continue
+        return {p.name: p.default for p in params if p.default is not inspect.Parameter.empty}
+    return {}
+
+
+def _argument_kind(default: Any, value: Any) -> str | None:
+    """What ``value`` must be to stand for an argument of default ``default``; None if it is
+    that (or the default is of no kind checked here)."""
+    if isinstance(default, bool):
+        return None if isinstance(value, bool) else "true or false"
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if isinstance(default, int):
+        return None if number and isinstance(value, int) and value >= 1 else "a whole number >= 1"
+    if isinstance(default, float):
+        return None if number and math.isfinite(value) else "a finite number"
+    if isinstance(default, str):
+        return None if isinstance(value, str) else "a name (text)"
+    return None
+
+
 class WorldModel(nn.Module):
     """Base class: input masking for the state-group ablation, config, predict()."""
 
@@ -134,6 +167,21 @@ class WorldModel(nn.Module):
     def config(self) -> dict[str, Any]:
         """JSON that rebuilds this model with :func:`rmi_learn.world_models.build`."""
         return {"kind": self.kind, "state_groups": self.state_groups}
+
+    @classmethod
+    def check_arguments(cls, args: Mapping[str, Any]) -> None:
+        """Raise ValueError naming the argument unless each of the constructor arguments
+        ``args`` is of its default's kind: a whole number >= 1 for a size or count, a
+        finite number for a real one, true or false for a switch, text for a name. Names
+        the constructor does not take are left to it (TypeError). A model with further
+        rules adds them in its override."""
+        defaults = constructor_defaults(cls)
+        for name, value in args.items():
+            if name not in defaults:
+                continue
+            want = _argument_kind(defaults[name], value)
+            if want is not None:
+                raise ValueError(f"{cls.kind}: {name} must be {want}, got {value!r}")
 
     def prepare(
         self, hist: torch.Tensor, hist_mask: torch.Tensor

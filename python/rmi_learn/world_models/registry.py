@@ -38,11 +38,13 @@ DISPLAY_NAMES: dict[str, str] = {
 
 
 def build(config: dict[str, Any]) -> WorldModel:
-    """A fresh model from ``{"kind": ..., **constructor arguments}``."""
+    """A fresh model from ``{"kind": ..., **constructor arguments}``; ValueError naming an
+    argument of the wrong kind or out of range (see :meth:`WorldModel.check_arguments`)."""
     cfg = dict(config)
     kind = cfg.pop("kind")
     if kind not in MODELS:
         raise ValueError(f"unknown world model {kind!r}; known: {sorted(MODELS)}")
+    MODELS[kind].check_arguments(cfg)
     return MODELS[kind](**cfg)
 
 

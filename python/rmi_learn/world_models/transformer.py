@@ -12,13 +12,22 @@ H <= max_horizon gives exactly the first H steps of a longer chunk's forecast.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import torch
 from torch import nn
 
 from rmi_learn.data.schema import HISTORY, HORIZON
-from rmi_learn.world_models.common import N_FRIC, N_OBS, N_U, N_Z, WorldModel, last_z
+from rmi_learn.world_models.common import (
+    N_FRIC,
+    N_OBS,
+    N_U,
+    N_Z,
+    WorldModel,
+    constructor_defaults,
+    last_z,
+)
 
 
 class TransformerWM(WorldModel):
@@ -67,6 +76,20 @@ class TransformerWM(WorldModel):
         nn.init.zeros_(self.head_z.bias)
         causal = torch.triu(torch.full((max_horizon, max_horizon), float("-inf")), diagonal=1)
         self.register_buffer("causal", causal, persistent=False)
+
+    @classmethod
+    def check_arguments(cls, args: Mapping[str, Any]) -> None:
+        """The checks of every model, then the attention's: ``dropout`` a probability and
+        ``d_model`` split evenly over the ``nhead`` heads."""
+        super().check_arguments(args)
+        a = {**constructor_defaults(cls), **args}
+        if not 0.0 <= a["dropout"] <= 1.0:
+            raise ValueError(f"{cls.kind}: dropout must be in [0, 1], got {a['dropout']!r}")
+        if a["d_model"] % a["nhead"]:
+            raise ValueError(
+                f"{cls.kind}: d_model must be a multiple of nhead, got d_model={a['d_model']} "
+                f"and nhead={a['nhead']}"
+            )
 
     def config(self) -> dict[str, Any]:
         return {

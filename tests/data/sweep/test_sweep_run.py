@@ -7,6 +7,7 @@ end-to-end test with the real engine is ``test_sweep_engine.py``.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import signal
@@ -27,6 +28,7 @@ from sweep_doubles import (
     logged,
 )
 
+import rmi_learn.data.sweep.index as index
 from rmi_learn.cli import main as cli_main
 from rmi_learn.data.runs import iter_run_files, read_run, run_path, scan_runs
 from rmi_learn.data.sweep.grid import RunSpec, expand_grid, load_grid
@@ -213,6 +215,37 @@ def test_cli_sweep_and_index_only(tmp_path: Path, capsys: pytest.CaptureFixture[
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({**grid(), "squeeze_forces_N": [500]}))
     assert cli_main(["sweep", "--grid", str(bad), "--out", str(out)]) == 2
+
+
+class _FullDisk:
+    """A file on a full disk: every write fails with ENOSPC."""
+
+    def write(self, data: object) -> int:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def test_an_index_on_a_full_disk_is_one_line_and_keeps_the_old_index(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "out"
+    specs = expand_grid(grid(sizes_cm=[8], hold_forces_N=[30, 150]))
+    run_sweep(specs, out, runner=fake_runner, make_config=fake_make_config, workers=0,
+              progress=False)  # fmt: skip
+    before = (out / INDEX_FILE).read_bytes()
+    real = index.atomic_write_bytes
+    monkeypatch.setattr(
+        index, "atomic_write_bytes", lambda path, writer: real(path, lambda f: writer(_FullDisk()))
+    )
+    with pytest.raises(OSError) as err:
+        build_index(out)
+    assert err.value.errno == errno.ENOSPC and err.value.filename == str(out / INDEX_FILE)
+    capsys.readouterr()
+    assert cli_main(["sweep", "--out", str(out), "--index-only"]) == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("rmi sweep: "), lines
+    assert str(out / INDEX_FILE) in lines[0] and "No space left" in lines[0]
+    assert (out / INDEX_FILE).read_bytes() == before
+    assert not list(out.glob(".*.tmp"))
 
 
 def test_kill_9_midway_then_resume_loses_nothing(tmp_path: Path) -> None:

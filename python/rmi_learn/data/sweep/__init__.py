@@ -29,8 +29,8 @@ that differ only in their squeeze force are one job each, run from one shared pr
 
 The modules, one concept each: :mod:`.grid` (grids and their runs), :mod:`.configs` (the
 runs' trial configs), :mod:`.compute` (computing and storing runs), :mod:`.index` (the run
-index), :mod:`.lock` (the output directory's lock), :mod:`.local` and :mod:`.ray_runner`
-(the backends) and :mod:`.run` (the driver).
+index), :mod:`.lock` (the output directory's lock file and a killed sweep's temporaries),
+:mod:`.local` and :mod:`.ray_runner` (the backends) and :mod:`.run` (the driver).
 """
 
 from rmi_learn.data.sweep.compute import (

@@ -21,6 +21,7 @@ from rmi_learn.data.runs import (
     run_id,
 )
 from rmi_learn.data.schema import PHASES
+from rmi_learn.data.staging import parquet_bytes
 from rmi_learn.data.sweep.configs import is_perturbed
 
 RUNS_SUBDIR = "runs"
@@ -89,13 +90,15 @@ def build_index(out_dir: str | os.PathLike[str], write: bool = True) -> pl.DataF
     group's time split evenly),
     ``n_records``, ``duration_s`` (simulated s), and any other scalar the outcome holds
     (e.g. particle counts). A run file whose outcome ``failure`` mentions "unstable" has
-    status ``unstable``.
+    status ``unstable``. A write that fails (a full disk) raises its OSError naming the
+    index file.
     """
     out = Path(out_dir)
     df = index_frame(out / RUNS_SUBDIR, out)
     if write:
         out.mkdir(parents=True, exist_ok=True)
-        atomic_write_bytes(out / INDEX_FILE, lambda f: df.write_parquet(f))
+        data = parquet_bytes(df)
+        atomic_write_bytes(out / INDEX_FILE, lambda f: f.write(data))
     return df
 
 

@@ -17,6 +17,7 @@ import polars as pl
 from tqdm.auto import tqdm  # type: ignore[import-untyped]
 
 import rmi_sph
+from rmi_learn.data.output_lock import output_lock
 from rmi_learn.data.runs import atomic_write_json, run_path
 from rmi_learn.data.schema import size_cm
 from rmi_learn.data.sweep.compute import Runner, RunSettings, is_done, prefix_groups
@@ -24,7 +25,7 @@ from rmi_learn.data.sweep.configs import ConfigMaker, check_stale, configs_of
 from rmi_learn.data.sweep.grid import RunSpec, expand_grid, load_grid
 from rmi_learn.data.sweep.index import RUNS_SUBDIR, build_index
 from rmi_learn.data.sweep.local import run_local
-from rmi_learn.data.sweep.lock import clean_temporaries, sweep_lock
+from rmi_learn.data.sweep.lock import LOCK_NAME, clean_temporaries
 from rmi_learn.data.sweep.ray_runner import run_ray
 from rmi_learn.errors import InputError, StageFailure
 
@@ -123,7 +124,7 @@ def run_sweep(
     configs = configs_of(specs, make_config)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    with sweep_lock(out):
+    with output_lock(out, LOCK_NAME):
         _check_grid_file(out, grid)
         clean_temporaries(out)
         settings = RunSettings(str(out / RUNS_SUBDIR), runner, threads_per_run, retry_failed)
