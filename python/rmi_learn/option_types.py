@@ -37,7 +37,8 @@ def count(low: int, high: int = COUNT_MAX) -> Callable[[str], int]:
     return parse
 
 
-#: A seed: an integer in [0, SEED_MAX] (the run files' Int64; torch and the engine take it).
+#: A seed: an integer in [0, SEED_MAX], the engine's range (run files store seeds as Int64;
+#: torch takes them too).
 seed = count(0, SEED_MAX)
 
 

@@ -16,6 +16,7 @@ __all__ = [
     "EXTRA_NAMES",
     "ACTION_NAMES",
     "FORCE_LIMIT_N",
+    "SEED_MAX",
     "SPONGE_SIZES_M",
     "engine_info",
     "_raise_error",
@@ -43,6 +44,8 @@ EXTRA_NAMES: Final[tuple[str, ...]]
 ACTION_NAMES: Final[tuple[str, ...]]
 #: Hard force limit of the gripper (N): targets are clipped to it, loads above it open.
 FORCE_LIMIT_N: Final[float]
+#: Largest seed a config takes (2^63 - 1): every seed is an integer in [0, SEED_MAX].
+SEED_MAX: Final[int]
 #: The paper's three sponges as (x, y, z) sizes in m, small to large.
 SPONGE_SIZES_M: Final[tuple[tuple[float, float, float], ...]]
 

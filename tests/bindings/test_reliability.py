@@ -117,8 +117,9 @@ def test_material_porosity_follows_porosity() -> None:
 
 
 def test_integer_arguments_of_any_size_are_range_checked() -> None:
-    assert rmi_sph.trial_config(8, 0.6, 20, 40, 0.01, seed=2**63)["seed"] == 2**63
+    assert rmi_sph.trial_config(8, 0.6, 20, 40, 0.01, seed=2**63 - 1)["seed"] == 2**63 - 1
     for call, field in [
+        (lambda: rmi_sph.trial_config(8, 0.6, 20, 40, 0.01, seed=2**63), "seed"),
         (lambda: rmi_sph.trial_config(8, 0.6, 20, 40, 0.01, seed=2**64), "seed"),
         (lambda: rmi_sph.trial_config(8, 0.6, 20, 40, 0.01, seed=-(2**200)), "seed"),
         (lambda: rmi_sph.Trial(tiny(), num_threads=2**63), "num_threads"),
@@ -131,6 +132,33 @@ def test_integer_arguments_of_any_size_are_range_checked() -> None:
     with pytest.raises(rmi_sph.ConfigError) as err:
         t.step(2**64)
     assert err.value.field == "n"
+
+
+@pytest.mark.parametrize(
+    ("make", "field"),
+    [
+        (lambda seed: rmi_sph.trial_config(8, 0.6, 20, 40, 0.01, seed=seed), "seed"),
+        (lambda seed: rmi_sph.validate_config({"seed": seed}), "seed"),
+        (lambda seed: rmi_sph.Trial({**tiny(), "seed": seed}, num_threads=1), "seed"),
+        (
+            lambda seed: rmi_sph.validate_config(
+                {"controller": {"perturbation": {"enabled": True, "seed": seed}}}
+            ),
+            "controller.perturbation.seed",
+        ),
+        (lambda seed: engine.validate_config({"scene": {"seed": seed}}), "scene.seed"),
+    ],
+    ids=["trial_config", "validate_config", "Trial", "perturbation", "engine"],
+)
+def test_every_seed_is_in_one_range(make: object, field: str) -> None:
+    assert rmi_sph.SEED_MAX == 2**63 - 1  # what run files can store (Int64)
+    make(rmi_sph.SEED_MAX)  # type: ignore[operator]
+    for seed in (rmi_sph.SEED_MAX + 1, 2**64 - 1):
+        with pytest.raises(rmi_sph.ConfigError) as err:
+            make(seed)  # type: ignore[operator]
+        assert err.value.field == field
+        assert err.value.expected == f"an integer in [0, {rmi_sph.SEED_MAX}]"
+        assert "\n" not in str(err.value)
 
 
 def test_invalid_rmi_num_threads_is_refused() -> None:

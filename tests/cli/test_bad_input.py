@@ -3,20 +3,27 @@ stderr naming the field or path (and the accepted range), and leaves nothing hal
 
 from __future__ import annotations
 
+import argparse
 import errno
 import io
 import json
 import os
+import re
 import shutil
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import polars as pl
 import pytest
 
-from rmi_learn.cli import main
+from rmi_learn.cli import build_parser, main
+from rmi_learn.data.schema import SEED_MAX
 from tiny_trial import tiny_config
+
+#: The seeds every command and the engine take, as their errors state them.
+SEED_RANGE = f"an integer in [0, {2**63 - 1}]"
 
 
 def tiny_config_file(directory: Path, **changes: object) -> list[str]:
@@ -87,6 +94,39 @@ def test_integer_options_beyond_their_range_are_usage_errors(
     line = usage_error(capsys, argv)
     assert f"argument {option}: expected an integer in [" in line
     assert not (tmp_path / "o").exists()
+
+
+def seed_options(parser: argparse.ArgumentParser) -> Iterator[tuple[str, argparse.Action]]:
+    """Every ``--seed`` option of ``parser``'s commands (and their subcommands)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                for where, found in seed_options(sub):
+                    yield f"{name} {where}".strip(), found
+        elif "--seed" in action.option_strings:
+            yield "", action
+
+
+def test_every_seed_option_takes_the_engine_range() -> None:
+    found = dict(seed_options(build_parser()))
+    assert {"simulate", "dataset build", "analyze", "control-bench"} <= set(found)
+    for command, action in found.items():
+        parse = action.type
+        assert callable(parse), command
+        assert parse(str(SEED_MAX)) == SEED_MAX == 2**63 - 1, command
+        with pytest.raises(argparse.ArgumentTypeError, match=re.escape(SEED_RANGE)):
+            parse(str(SEED_MAX + 1))
+
+
+def test_simulate_refuses_a_config_seed_beyond_the_engine_range(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "out"
+    argv = ["simulate", *tiny_config_file(tmp_path, seed=SEED_MAX + 1), "--out", str(out)]
+    assert main(argv) == 2
+    line = one_line(capsys, "simulate")
+    assert "`seed`" in line and SEED_RANGE in line
+    assert not out.exists()
 
 
 def test_device_cuda_without_a_gpu_is_one_usage_line(
@@ -173,6 +213,66 @@ def test_a_run_file_missing_a_column_is_named(
     assert main([command, *argv, *(["--bootstrap", "10"] if command == "analyze" else [])]) == 2
     line = one_line(capsys, command)
     assert str(bad) in line and "F_meas" in line
+    assert not out.exists()
+
+
+def forge_seed(path: Path, seed: int) -> None:
+    """Rewrite a run file with ``seed`` in its parameters, as a tool other than ``rmi``
+    might."""
+    meta = pl.read_parquet_metadata(path)
+    params = json.loads(meta["rmi.params"])
+    meta["rmi.params"] = json.dumps({**params, "seed": seed})
+    pl.read_parquet(path).write_parquet(path, metadata=meta)
+
+
+def test_dataset_names_a_run_file_whose_seed_is_beyond_the_range(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], synthetic_runs_dir: Path
+) -> None:
+    runs = tmp_path / "runs"
+    shutil.copytree(synthetic_runs_dir, runs)
+    bad = sorted(runs.rglob("run.parquet"))[0]
+    forge_seed(bad, SEED_MAX + 1)
+    out = tmp_path / "out"
+    assert main(["dataset", "build", "--runs", str(runs), "--out", str(out)]) == 2
+    line = one_line(capsys, "dataset")
+    assert str(bad) in line and "'seed'" in line and SEED_RANGE in line
+    assert not out.exists()
+
+
+def damage_first_row(path: Path) -> None:
+    """Rewrite a run file with an infinite load in its first row, keeping its metadata."""
+    meta = pl.read_parquet_metadata(path)
+    first = pl.int_range(pl.len()) == 0
+    expr = pl.when(first).then(float("inf")).otherwise(pl.col("F_meas")).alias("F_meas")
+    pl.read_parquet(path).with_columns(expr).write_parquet(path, metadata=meta)
+
+
+@pytest.mark.parametrize("refused", ["unknown-run-id", "damaged-run-file"])
+def test_analyze_refusing_its_input_leaves_no_out(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], synthetic_runs_dir: Path, refused: str
+) -> None:
+    runs = tmp_path / "runs"
+    shutil.copytree(synthetic_runs_dir, runs)
+    bad = sorted(runs.rglob("run.parquet"))[0]
+    run_id = "size_cm=9/porosity=0.5/F_hold=1/F_squeeze=1/seed=0"
+    if refused == "damaged-run-file":
+        damage_first_row(bad)
+        run_id = bad.parent.relative_to(runs).as_posix()
+    out = tmp_path / "figures" / "out"
+    argv = ["analyze", "--runs", str(runs), "--out", str(out), "--run-id", run_id]
+    assert main([*argv, "--bootstrap", "10"]) == 2
+    line = one_line(capsys, "analyze")
+    assert (str(bad) if refused == "damaged-run-file" else run_id) in line
+    assert not (tmp_path / "figures").exists()
+
+
+@pytest.mark.parametrize("option", ["--only", "--redo"])
+def test_pipeline_with_an_unknown_stage_leaves_no_out(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], option: str
+) -> None:
+    out = tmp_path / "out"
+    assert main(["pipeline", "--preset", "tiny", "--out", str(out), option, "bogus"]) == 2
+    assert "unknown stage 'bogus'" in one_line(capsys, "pipeline")
     assert not out.exists()
 
 

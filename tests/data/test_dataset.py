@@ -541,3 +541,13 @@ def test_a_killed_build_leaves_the_previous_dataset_and_its_temporary_goes_next_
     assert {p.name: p.read_bytes() for p in out.iterdir() if p not in hidden} == before
     assert cli_main(["dataset", "build", "--runs", str(synthetic_runs_dir), "--out", str(out)]) == 0
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # the same build again
+
+
+@pytest.mark.parametrize("seed", [-1, 2**63, True])
+def test_a_split_seed_out_of_the_range_is_refused_before_anything_is_written(
+    tmp_path: Path, synthetic_runs_dir: Path, seed: object
+) -> None:
+    out = tmp_path / "ds"
+    with pytest.raises(ValueError, match=r"seed must be an integer in \[0, 9223372036854775807\]"):
+        build_dataset(synthetic_runs_dir, out, seed=seed)  # type: ignore[arg-type]
+    assert not out.exists()

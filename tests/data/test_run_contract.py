@@ -12,7 +12,8 @@ import polars as pl
 import pytest
 
 from rmi_learn.data.dataset import build_dataset
-from rmi_learn.data.runs import read_run, run_path, write_run
+from rmi_learn.data.runs import read_run, run_id, run_path, write_run
+from rmi_learn.data.schema import SEED_MAX
 from rmi_learn.data.synthetic import simulate_toy_run
 from rmi_learn.errors import RunFileError
 
@@ -75,3 +76,19 @@ def test_the_dataset_builder_refuses_a_non_finite_load(tmp_path: Path) -> None:
     with pytest.raises(RunFileError, match="'F_meas'"):
         build_dataset(tmp_path / "runs", out)
     assert not (out / "frames.parquet").exists()
+
+
+def test_every_seed_of_the_range_names_its_own_run_and_one_beyond_is_refused(
+    tmp_path: Path,
+) -> None:
+    res = simulate_toy_run(8, 0.5, 30.0, 150.0, 0)
+    for seed in (2**53, 2**53 + 1, SEED_MAX):
+        params = {**PARAMS, "seed": seed}
+        assert run_id(params).endswith(f"/seed={seed}")  # exactly, not through a float
+        path = write_run(run_path(tmp_path, params), res["columns"], {}, params, res["outcome"])
+        assert read_run(path)[1]["params"]["seed"] == seed
+    beyond = {**PARAMS, "seed": SEED_MAX + 1}
+    with pytest.raises(
+        RunFileError, match=rf"param 'seed' must be an integer in \[0, {SEED_MAX}\]"
+    ):
+        write_run(run_path(tmp_path, beyond), res["columns"], {}, beyond, res["outcome"])

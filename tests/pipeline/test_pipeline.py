@@ -103,6 +103,19 @@ def test_stage_options_are_checked_like_the_commands_arguments(tmp_path: Path) -
     )
 
 
+def test_every_seed_of_a_preset_takes_the_engine_range(tmp_path: Path) -> None:
+    path = tmp_path / "p.json"
+    top = 2**63 - 1
+    for stage in ("world_models", "policies", "rank", "control"):
+        path.write_text(json.dumps({"grid": "tiny", stage: {"seed": top}}))
+        assert getattr(load_preset(path=path), stage).given() == {"seed": top}
+        path.write_text(json.dumps({"grid": "tiny", stage: {"seed": top + 1}}))
+        with pytest.raises(
+            ValueError, match=rf"{stage}: seed: expected an integer in \[0, {top}\]"
+        ):
+            load_preset(path=path)
+
+
 def test_flags_follow_cli_spelling() -> None:
     assert flag_words("max_windows", 4) == ("--max-windows", "4")
     assert flag_words("debug", True) == ("--debug",)

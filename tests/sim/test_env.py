@@ -305,6 +305,20 @@ def test_a_seeded_reset_is_reproducible_and_unseeded_resets_differ(cfg: dict[str
     assert episode(other, None) == drawn[0]
 
 
+@pytest.mark.parametrize("seed", [-1, 2**63, 2**64, True])
+def test_a_seed_out_of_the_engine_range_is_refused_and_changes_nothing(
+    cfg: dict[str, Any], seed: Any
+) -> None:
+    env = SpongeSqueezeEnv(cfg, goal=0.5)
+    env.reset(seed=3)
+    sim, stream = env.sim, env.np_random.bit_generator.state
+    with pytest.raises(ValueError) as exc:
+        env.reset(seed=seed)
+    message = str(exc.value)
+    assert message.startswith(f"seed must be an integer in [0, {rmi_sph.SEED_MAX}]")
+    assert env.sim is sim and env.np_random.bit_generator.state == stream
+
+
 def test_a_state_of_another_config_is_refused(cfg: dict[str, Any], tmp_path: Any) -> None:
     env = SpongeSqueezeEnv(cfg, goal=0.5)
     env.reset(seed=0)

@@ -162,7 +162,7 @@ fn run_squeeze_group<'py>(
 /// radius : float, default 0.005
 ///     Particle radius r (m).
 /// seed : int, default 0
-///     Seed of the initial pore-water jitter.
+///     Seed of the initial pore-water jitter, in [0, ``SEED_MAX``] (2^63 - 1).
 /// **overrides
 ///     TrialConfig fields (``dt``, ``jitter``, ``record_every``, ``saturated``, and tables
 ///     ``material``, ``gripper``, ``friction``, ``gate``, ``controller``, ``pressure``,
@@ -186,7 +186,7 @@ fn trial_config<'py>(
     #[pyo3(from_py_with = errors::any_int)] seed: i128,
     overrides: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    let seed = errors::int_arg(seed, "seed", "an integer in [0, 2^64 - 1]")?;
+    let seed = errors::int_arg(seed, "seed", &rmi_sph::config::seed_range())?;
     let cfg = config::trial_config(size_cm, porosity, hold_force, squeeze_force, radius, seed, overrides)?;
     config::to_dict(py, &cfg)
 }
@@ -215,6 +215,7 @@ fn _rmi_sph(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("ACTION_NAMES", PyTuple::new(py, convert::ACTIONS)?)?;
     // The robot's physical limits and the paper's sponges, so Python never restates them.
     m.add("FORCE_LIMIT_N", rmi_robot::gripper::FORCE_LIMIT)?;
+    m.add("SEED_MAX", rmi_sph::config::SEED_MAX)?;
     let sizes: Vec<(f64, f64, f64)> = rmi_sph::presets::SPONGE_SIZES.iter().map(|s| (s[0], s[1], s[2])).collect();
     m.add("SPONGE_SIZES_M", PyTuple::new(py, sizes)?)?;
     m.add_function(wrap_pyfunction!(engine_info, m)?)?;

@@ -15,7 +15,7 @@
 //! trials are lifted rather than what the water does.
 
 use crate::gripper::FORCE_LIMIT;
-use rmi_sph::config::check_range;
+use rmi_sph::config::{check_range, check_seed};
 use rmi_sph::{Result, RmiError};
 use serde::{Deserialize, Serialize};
 
@@ -26,7 +26,7 @@ pub struct SetpointPerturbation {
     /// Replace the scripted targets from the lift on by the seeded schedule.
     pub enabled: bool,
     /// Seed of the schedule; it is mixed with the holding and squeeze forces, so runs of
-    /// one seed that differ in either force follow different schedules.
+    /// one seed that differ in either force follow different schedules. In [0, `SEED_MAX`].
     pub seed: u64,
     /// Shortest and longest segment (s).
     pub segment_time: [f64; 2],
@@ -69,6 +69,7 @@ fn uniform(key: u64, k: u64, channel: u64) -> f64 {
 impl SetpointPerturbation {
     /// Validates every field; `p` is the dotted path used in error messages.
     pub fn validate(&self, p: &str) -> Result<()> {
+        check_seed(&format!("{p}.seed"), self.seed)?;
         let [lo, hi] = self.segment_time;
         check_range(&format!("{p}.segment_time[0]"), lo, 1e-3, 10.0, "s")?;
         check_range(&format!("{p}.segment_time[1]"), hi, 1e-3, 10.0, "s")?;

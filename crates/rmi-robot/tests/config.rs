@@ -79,3 +79,44 @@ fn trial_cg_settings_reach_the_engine() {
     let e = TrialConfig::from_json(r#"{"cg": {"tolerance": 0.5}}"#).unwrap_err().to_string();
     assert!(e.contains("cg.tolerance") && e.contains("0.5"), "{e}");
 }
+
+/// Every seed a config holds (the trial's, the perturbed targets', the engine scene's) is in
+/// [0, SEED_MAX] (2^63 - 1), the range run files can store; one above is an error of one
+/// line naming the field and that range, whichever way the config comes in.
+#[test]
+fn seeds_beyond_int64_are_refused_naming_the_field_and_the_range() {
+    use rmi_sph::config::{seed_range, SEED_MAX};
+    assert_eq!(SEED_MAX, i64::MAX as u64);
+    assert_eq!(seed_range(), "an integer in [0, 9223372036854775807]");
+    let top = TrialConfig::from_json_value(&json!({"seed": SEED_MAX})).unwrap();
+    assert_eq!(top.seed, SEED_MAX);
+    top.sim_config().validate().unwrap();
+    let cases = [
+        (json!({"seed": SEED_MAX + 1}), "seed"),
+        (json!({"seed": u64::MAX}), "seed"),
+        (
+            json!({"controller": {"perturbation": {"enabled": true, "seed": SEED_MAX + 1}}}),
+            "controller.perturbation.seed",
+        ),
+    ];
+    for (given, want) in cases {
+        let e = TrialConfig::from_json_value(&given).unwrap_err();
+        let text = e.to_string();
+        assert!(!text.contains('\n') && text.contains(&seed_range()), "{text}");
+        match e {
+            RmiError::InvalidConfig { field, .. } => assert_eq!(field, want, "{given}"),
+            other => panic!("{given}: {other:?}"),
+        }
+        let e = TrialConfig::from_json(&given.to_string()).unwrap_err();
+        assert!(e.to_string().contains(&format!("`{want}`")), "{e}");
+    }
+    let mut sim = tiny().sim_config();
+    sim.scene.seed = SEED_MAX + 1;
+    match sim.validate() {
+        Err(RmiError::InvalidConfig { field, expected, .. }) => {
+            assert_eq!((field.as_str(), expected), ("scene.seed", seed_range()))
+        }
+        other => panic!("{other:?}"),
+    }
+    assert!(rmi_robot::config::trial_config(8.0, 0.6, 20.0, 40.0, 0.01, SEED_MAX + 1, []).is_err());
+}

@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -92,18 +93,34 @@ def _ours_vs_paper(counts: Mapping[str, Any], lift: Mapping[str, Any]) -> dict[s
     }
 
 
+@dataclass(frozen=True)
+class Representative:
+    """The run of Fig. 4 (``row`` and its ``frame``; both ``None`` without one) and why it
+    was chosen (``why``)."""
+
+    row: dict[str, Any] | None
+    why: dict[str, Any]
+    frame: pl.DataFrame | None
+
+
+def _representative(table: RunTable, run_id: str | None) -> Representative:
+    """Fig. 4's run, its run file read (and so checked) before anything is written."""
+    row, why = choose_representative(table, run_id)
+    frame = read_run(table.base / str(row["path"]))[0] if row else None
+    return Representative(row, why, frame)
+
+
 def _single_run(
-    table: RunTable, run_id: str | None, tag: str, path: Path
+    chosen: Representative, tag: str, path: Path
 ) -> tuple[dict[str, Any] | None, dict[str, Any]]:
     """Fig. 4: draw the representative run (or say why there is none) into ``path``;
     returns the run's JSON entry (``None`` without a run) and why it was chosen."""
-    row, why = choose_representative(table, run_id)
+    row, why = chosen.row, chosen.why
     single: dict[str, Any] | None = None
-    if row:
-        frame, _ = read_run(table.base / str(row["path"]))
+    if row and chosen.frame is not None:
         params = {k: row[k] for k in PARAM_KEYS}
         fig = plot_single_run(
-            frame,
+            chosen.frame,
             f"{row['run_id']}: lift {'ok' if row['lift_success'] else 'failed'}, "
             f"squeeze {'stable' if row['stable_squeeze'] else 'not stable'}{tag}",
         )
@@ -173,21 +190,30 @@ def analyze(
     file atomically. Returns the JSON content. ``run_id`` picks the run of Fig. 4 (default:
     see :func:`~rmi_learn.analysis.run_table.choose_representative`); ``n_boot`` and ``seed``
     set the cluster bootstrap. Raises :class:`~rmi_learn.analysis.run_table.AnalysisError`
-    for unusable input."""
+    for unusable input and :class:`~rmi_learn.errors.RunFileError` for a damaged run file of
+    Fig. 4, both before ``out_dir`` is created."""
     table = load_runs(runs_dir)
+    chosen = _representative(table, run_id)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    return _write_analysis(table, chosen, Path(runs_dir), out, n_boot, seed)
+
+
+def _write_analysis(
+    table: RunTable, chosen: Representative, runs_dir: Path, out: Path, n_boot: int, seed: int
+) -> dict[str, Any]:
+    """Draw the figures and write ``analysis.json`` into ``out``; returns the JSON content."""
     index = table.index
     sources = sorted({s for s in index["source"].to_list() if s is not None})
     synthetic = SYNTHETIC_SOURCE in sources
     tag = " [SYNTHETIC TOY DATA: not physics]" if synthetic else ""
     counts = run_counts(index)
-    single, why = _single_run(table, run_id, tag, out / FIGURES["single_run"])
+    single, why = _single_run(chosen, tag, out / FIGURES["single_run"])
     water = _water_removed(index, tag, out / FIGURES["water_per_phase"])
     lift = _lift_success(index, tag, out / FIGURES["lift_success"])
     assoc, stable = _association(index, n_boot, seed, tag, out / FIGURES["squeeze_association"])
     result: dict[str, Any] = {
-        "input": {"runs_dir": str(Path(runs_dir)), "read_from": table.origin},
+        "input": {"runs_dir": str(runs_dir), "read_from": table.origin},
         "synthetic": synthetic,
         "run_sources": sources,
         "note": (

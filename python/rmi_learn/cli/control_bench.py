@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 from rmi_learn.cli.threads import add_threads, threads_of
-from rmi_learn.option_types import count
+from rmi_learn.option_types import count, seed
 
 
 def _names(text: str) -> list[str]:
@@ -145,7 +145,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="test",
         help="held-out runs the start states come from (val when test is empty)",
     )
-    parser.add_argument("--seed", type=count(0), default=0, help="seed of draws and sampling")
+    parser.add_argument("--seed", type=seed, default=0, help="seed of draws and sampling")
     add_threads(parser, "the engine and torch")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 

@@ -72,6 +72,7 @@ from rmi_learn.data.schema import (
     HORIZON,
     LEARNING_PHASES,
     OBS,
+    checked_seed,
 )
 from rmi_learn.errors import InputError, input_errors
 
@@ -348,9 +349,10 @@ def build_dataset(
     recursively for ``run.parquet``) into ``out_dir`` and return ``out_dir``.
 
     See the module docstring for the selection, resampling, split and statistics rules.
-    Raises FileNotFoundError if ``run_dir`` is not a directory, ValueError if no run
-    qualifies or the training split is empty.
+    Raises FileNotFoundError if ``run_dir`` is not a directory, ValueError if ``seed`` is
+    not in [0, SEED_MAX], no run qualifies or the training split is empty.
     """
+    seed = checked_seed(seed)
     run_dir, out = Path(run_dir), Path(out_dir)
     if not run_dir.is_dir():
         raise FileNotFoundError(f"{run_dir} is not a directory of runs")

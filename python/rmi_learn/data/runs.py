@@ -43,7 +43,7 @@ import numpy as np
 import polars as pl
 
 from rmi_learn import __version__
-from rmi_learn.data.schema import ACTIONS, EXTRAS, OBS
+from rmi_learn.data.schema import ACTIONS, EXTRAS, OBS, SEED_MAX, SEED_RANGE
 from rmi_learn.errors import RunFileError
 from rmi_learn.user_files import read_user_text
 
@@ -243,6 +243,9 @@ def format_value(x: float | int) -> str:
     """Shortest text of a parameter value for a path: ``110.0 -> "110"``, ``0.6 -> "0.6"``."""
     if isinstance(x, (bool, np.bool_)):
         raise TypeError("parameters are numbers, not booleans")
+    if isinstance(x, (int, np.integer)):
+        # Exactly: through a float, seeds above 2^53 would round into another run's name.
+        return str(int(x))
     xf = float(x)
     if xf.is_integer():
         return str(int(xf))
@@ -332,13 +335,16 @@ def _validate_params(params: Mapping[str, Any]) -> dict[str, Any]:
     for k in PARAM_KEYS:
         v = params[k]
         if k in ("size_cm", "seed"):
-            if float(v) != int(v):
+            # An int is compared as itself: as a float, one above 2^53 would not equal itself.
+            if not isinstance(v, (int, np.integer)) and float(v) != int(v):
                 raise RunFileError(f"param {k!r} must be an integer, got {v!r}")
             out[k] = int(v)
         else:
             if not math.isfinite(float(v)):
                 raise RunFileError(f"param {k!r} must be finite, got {v!r}")
             out[k] = float(v)
+    if not 0 <= out["seed"] <= SEED_MAX:
+        raise RunFileError(f"param 'seed' must be {SEED_RANGE}, got {out['seed']}")
     return out
 
 
@@ -457,13 +463,29 @@ def check_run_values(path: str | os.PathLike[str], df: pl.DataFrame) -> None:
             raise RunFileError(f"{path}: column {name!r} has {n} {what}")
 
 
+def check_run_params(path: str | os.PathLike[str], params: Any) -> None:
+    """Refuse a run file whose parameters (``rmi.params``) break the contract that
+    :func:`write_run` checks: one missing, not a number, a fraction where an integer
+    belongs, a seed outside [0, SEED_MAX]. Raises :class:`RunFileError` naming the file."""
+    if not isinstance(params, Mapping):
+        raise RunFileError(f"{path}: {META_KEYS['params']} is not a JSON object")
+    try:
+        _validate_params(params)
+    except RunFileError as exc:
+        raise RunFileError(f"{path}: {exc}") from exc
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise RunFileError(f"{path}: a parameter is not a number ({exc})") from exc
+
+
 def read_run(path: str | os.PathLike[str]) -> tuple[pl.DataFrame, dict[str, Any]]:
     """Read a run file: its rows as a polars DataFrame and its metadata
-    (see :func:`read_run_meta`). The rows are checked against the run-file contract
-    (:func:`check_run_schema`, :func:`check_run_values`), so a file written by other tools
-    cannot carry a NaN, inf or a missing channel into the dataset; raises
-    :class:`RunFileError` naming the file and the column."""
+    (see :func:`read_run_meta`). The rows and parameters are checked against the run-file
+    contract (:func:`check_run_schema`, :func:`check_run_values`,
+    :func:`check_run_params`), so a file written by other tools cannot carry a NaN, inf, a
+    missing channel or a seed that does not fit Int64 into the dataset; raises
+    :class:`RunFileError` naming the file and the column or parameter."""
     meta = read_run_meta(path)
+    check_run_params(path, meta["params"])
     try:
         df = pl.read_parquet(Path(path))
     except pl.exceptions.PolarsError as exc:

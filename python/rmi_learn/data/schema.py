@@ -2,10 +2,10 @@
 stored runs and the learning code.
 
 The channel names and their order are the engine's (``rmi_sph.OBSERVATION_NAMES``,
-``EXTRA_NAMES``, ``ACTION_NAMES``), as are the gripper's force limit and the paper's sponge
-sizes; this module re-exports them and derives the groups the learning code uses. The
-meaning and unit of every channel, the run-file layout and the dataset API are described in
-``docs/data-contract.md``.
+``EXTRA_NAMES``, ``ACTION_NAMES``), as are the gripper's force limit, the paper's sponge
+sizes and the range of seeds; this module re-exports them and derives the groups the
+learning code uses. The meaning and unit of every channel, the run-file layout and the
+dataset API are described in ``docs/data-contract.md``.
 
 The observation ``y_t`` has 23 values in the paper's order (Eq. 7). Units are SI: kg, m, m^3,
 N, m^2, m/s. Reports convert water to grams at the end, never in stored data.
@@ -13,7 +13,9 @@ N, m^2, m/s. Reports convert water to grams at the end, never in stored data.
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Sequence
+from typing import Any
 
 import rmi_sph
 
@@ -73,9 +75,24 @@ HISTORY = 16
 HORIZON = 64
 
 
-#: Largest seed a run may have: run files and the sweep index store seeds as Int64 (the
-#: engine's u64 seed holds every one of them).
-SEED_MAX: int = 2**63 - 1
+#: Largest seed anything takes (2^63 - 1, the engine's ``SEED_MAX``): run files and the
+#: sweep index store seeds as Int64, and the engine refuses a config seed above it.
+SEED_MAX: int = int(rmi_sph.SEED_MAX)
+
+#: The accepted seeds, in the engine's words.
+SEED_RANGE = f"an integer in [0, {SEED_MAX}]"
+
+
+def checked_seed(value: Any, name: str = "seed") -> int:
+    """``value`` as a seed (an integer, numpy's included, not a bool, in [0, SEED_MAX]);
+    a one-line ``ValueError`` naming ``name`` and the range otherwise."""
+    try:
+        seed = None if isinstance(value, bool) else operator.index(value)
+    except TypeError:
+        seed = None
+    if seed is None or not 0 <= seed <= SEED_MAX:
+        raise ValueError(f"{name} must be {SEED_RANGE}, got {value!r:.80}")
+    return seed
 
 
 #: The gripper's force limit (N): commands are clipped to [0, FORCE_LIMIT_N].

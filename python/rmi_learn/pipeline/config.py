@@ -204,7 +204,7 @@ class ControlOptions(StageOptions):
     refine_metrics: str | None = _text()
     controllers: str | None = _text()
     split: str | None = _text()
-    seed: int | None = _count(0)
+    seed: int | None = _seed()
 
 
 @dataclass(frozen=True)

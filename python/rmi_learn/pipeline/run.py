@@ -96,15 +96,17 @@ def run_pipeline(
     """Run every stage of ``cfg`` into ``out_dir`` that has not finished yet.
 
     ``only`` restricts to the named stages (in pipeline order); ``redo`` forgets the markers
-    of the named stages first (their calls still resume rather than start over). Returns
+    of the named stages first (their calls still resume rather than start over); a name
+    that is not a stage of ``cfg`` is a ``ValueError`` before ``out_dir`` is created. Returns
     ``{stage: marker}``; raises :class:`PipelineError` on the first failing call (the
     stages before it keep their markers, so the next call continues there).
     """
     say = log or (lambda s: print(s, flush=True))
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    # Stage names are checked before anything is made, so a misspelt one leaves no directory.
     stages = build_stages(cfg, out, threads)
     _check_names(stages, only, redo)
+    out.mkdir(parents=True, exist_ok=True)
     _tie_to_preset(out, cfg)
     for name in redo or []:
         (out / STAGES_SUBDIR / f"{name}.json").unlink(missing_ok=True)

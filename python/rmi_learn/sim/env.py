@@ -23,7 +23,8 @@ None) ``TypeError``.
 
 Seeds: ``reset(seed=s)`` gives the episode of trial seed ``s``, the same every time; an
 unseeded reset draws the trial's seed from the environment's ``np_random``, so episodes
-differ from one reset to the next (see ``SpongeSqueezeEnv.reset``).
+differ from one reset to the next (see ``SpongeSqueezeEnv.reset``). Both are in
+[0, ``SEED_MAX``] (2^63 - 1), the engine's range of seeds.
 
 Observation: the 23 values of y_t in ``schema.OBS`` order as float32, with the pad loads
 averaged over the control step. ``v_res`` is undefined without contact (NaN in the engine
@@ -72,7 +73,7 @@ import numpy.typing as npt
 from gymnasium import spaces
 
 import rmi_sph
-from rmi_learn.data.schema import CONTROL_DT, FORCE_LIMIT_N, OBS, PHASES
+from rmi_learn.data.schema import CONTROL_DT, FORCE_LIMIT_N, OBS, PHASES, SEED_MAX, checked_seed
 from rmi_learn.sim.goal import (
     REFERENCE_SQUEEZE_N,
     RELEASE_FRACTION,
@@ -310,8 +311,8 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         ``Trial.get_state()``) or ``state_path`` (a file of ``Trial.save``) to start from a
         saved state of this environment's config (any seed) instead of the scripted
         approach; ``goal`` (kg) or ``goal_fraction``. Another key, a value of the wrong
-        kind or out of range, and a state of another config raise ``ValueError`` or
-        ``TypeError`` and leave the running episode as it was.
+        kind or out of range, a ``seed`` outside [0, ``SEED_MAX``] and a state of another
+        config raise ``ValueError`` or ``TypeError`` and leave the running episode as it was.
 
         ``seed`` seeds the environment's random stream ``np_random`` (as gymnasium's
         ``Env.reset`` does) and is the seed of the episode's trial (its pore-water jitter),
@@ -320,6 +321,8 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         environment, seeded apart, stay apart after their autoresets. A stream never seeded
         starts from fresh entropy, as in gymnasium.
         """
+        if seed is not None:
+            seed = checked_seed(seed)
         options = self._checked_options(options)
         goal, frac = options.get("goal"), options.get("goal_fraction")
         if goal is None and frac is None:
@@ -384,8 +387,8 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
             sim = rmi_sph.Trial.load(options["state_path"], num_threads=self.num_threads)
             return self._of_this_config('options["state_path"]', sim)
         if seed is None:
-            # Below 2^63: run files store seeds as Int64.
-            return self._scripted_approach(int(self.np_random.integers(2**63)), keep=False)
+            seed = int(self.np_random.integers(SEED_MAX + 1))
+            return self._scripted_approach(seed, keep=False)
         return self._scripted_approach(seed, keep=True)
 
     def _of_this_config(self, name: str, sim: rmi_sph.Trial) -> rmi_sph.Trial:

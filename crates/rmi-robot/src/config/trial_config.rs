@@ -5,7 +5,9 @@ use super::overlay::overlay;
 use crate::controller::ControllerParams;
 use crate::gate::GateParams;
 use crate::gripper::{add_pads, GripperConfig, FORCE_LIMIT};
-use rmi_sph::config::{check_range, CgConfig, PorousMaterial, Preconditioner, PressureConfig, SimConfig, WallLayer};
+use rmi_sph::config::{
+    check_range, check_seed, CgConfig, PorousMaterial, Preconditioner, PressureConfig, SimConfig, WallLayer,
+};
 use rmi_sph::contact::FrictionParams;
 use rmi_sph::{presets, Result, RmiError};
 use serde::{Deserialize, Serialize};
@@ -27,7 +29,7 @@ pub struct TrialConfig {
     pub particle_radius: f64,
     /// Time step (s).
     pub dt: f64,
-    /// Seed of the initial pore-water jitter.
+    /// Seed of the initial pore-water jitter, in [0, `SEED_MAX`] (2^63 - 1).
     pub seed: u64,
     /// Pore-water jitter as a fraction of the spacing.
     pub jitter: f64,
@@ -141,6 +143,7 @@ impl TrialConfig {
         check_range("hold_force", self.hold_force, 0.0, FORCE_LIMIT, "N")?;
         check_range("squeeze_force", self.squeeze_force, 0.0, FORCE_LIMIT, "N")?;
         check_range("jitter", self.jitter, 0.0, 0.25, "(fraction of the spacing)")?;
+        check_seed("seed", self.seed)?;
         check_range("soak_time", self.soak_time, 0.0, 10.0, "s")?;
         if self.record_every == 0 || self.record_every > 1_000_000 {
             return Err(RmiError::config("record_every", self.record_every, "an integer in [1, 1000000]"));

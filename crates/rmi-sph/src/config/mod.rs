@@ -10,7 +10,7 @@ mod memory;
 mod named;
 mod validate;
 
-pub use validate::{check_range, DENSITY_RANGE};
+pub use validate::{check_range, check_seed, seed_range, DENSITY_RANGE, SEED_MAX};
 
 pub use memory::{
     memory_limit, BOUNDARY_PARTICLE_BYTES, FALLBACK_MEMORY_LIMIT, FLUID_PARTICLE_BYTES, POROUS_PARTICLE_BYTES,

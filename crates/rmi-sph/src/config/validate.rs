@@ -8,6 +8,25 @@ use crate::error::{Result, RmiError};
 /// mass is its density times the spacing cubed, so these bound the masses of a snapshot too.
 pub const DENSITY_RANGE: [f64; 2] = [1.0, 1e5];
 
+/// Largest seed any config accepts (2^63 - 1). The engine would take any u64, but run files
+/// and their indexes store seeds as signed 64-bit integers, so one range everywhere keeps
+/// every seed the engine accepts storable.
+pub const SEED_MAX: u64 = i64::MAX as u64;
+
+/// The accepted seeds, as errors state them.
+pub fn seed_range() -> String {
+    format!("an integer in [0, {SEED_MAX}]")
+}
+
+/// `seed <= SEED_MAX`, else an [`RmiError::InvalidConfig`] naming `field` and the range.
+pub fn check_seed(field: &str, seed: u64) -> Result<()> {
+    if seed <= SEED_MAX {
+        Ok(())
+    } else {
+        Err(RmiError::config(field, seed, seed_range()))
+    }
+}
+
 /// Range check helper: `lo <= v <= hi`, finite.
 fn range(field: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<()> {
     if v.is_finite() && v >= lo && v <= hi {
@@ -131,6 +150,7 @@ impl SimConfig {
         }
         range("scene.jitter", self.scene.jitter, 0.0, 0.25, "(fraction of the spacing)")?;
         range("scene.soak_time", self.scene.soak_time, 0.0, 10.0, "s")?;
+        check_seed("scene.seed", self.scene.seed)?;
         let mut names = std::collections::HashSet::new();
         for (i, b) in self.scene.bodies.iter().enumerate() {
             let p = format!("scene.bodies[{i}]");
