@@ -548,7 +548,7 @@ class FullDiskFile(io.RawIOBase):
 def fill_the_disk(monkeypatch: pytest.MonkeyPatch) -> None:
     """Every write of a file fails with ENOSPC: the atomic writer's file, ``Path.write_*``,
     and polars writing to a path itself (reported by polars as on a real full disk)."""
-    import rmi_learn.data.dataset as dataset
+    import rmi_learn.data.dataset.builder as dataset
     import rmi_learn.data.runs as runs
 
     real = runs.atomic_write_bytes
