@@ -274,3 +274,17 @@ __all__ = [
     "total_water",
     "validated_configs",
 ]
+
+
+@dataclass
+class Setup:
+    """The loaded inputs: dataset, the sweep's run files, policies (with their history and
+    chunk length) and scorers (and the world models left out, with the reason)."""
+
+    ds: Any
+    index: dict[str, Path]
+    policies: dict[str, PolicyInput]
+    hist_len: int
+    h: int
+    scorers: dict[str, ScorerInput]
+    skipped: dict[str, str]
