@@ -81,7 +81,8 @@ META_KEYS = {
 # Atomic writes
 
 
-def _fsync_dir(directory: Path) -> None:
+def fsync_dir(directory: Path) -> None:
+    """Make the renames into ``directory`` durable, where the platform has directory handles."""
     try:
         fd = os.open(directory, os.O_RDONLY)
     except OSError:  # platforms without directory handles
@@ -129,7 +130,7 @@ def atomic_write_bytes(path: str | os.PathLike[str], writer: Any) -> Path:
             # A failed write (a full disk) names no file; the user needs to know which.
             raise OSError(exc.errno, exc.strerror, str(dest)) from exc
         raise
-    _fsync_dir(dest.parent)
+    fsync_dir(dest.parent)
     return dest
 
 

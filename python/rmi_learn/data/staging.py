@@ -21,6 +21,8 @@ from typing import NoReturn
 
 import polars as pl
 
+from rmi_learn.data.runs import fsync_dir
+
 #: Name of a temporary directory of this module: the name it stands for, the pid and host
 #: of the process writing it, mkdtemp's random part.
 _TEMPORARY = re.compile(r"^\..+\.(?P<pid>[0-9]+)@(?P<host>[A-Za-z0-9-]*)\.[a-z0-9_]+\.tmp$")
@@ -147,19 +149,5 @@ def move_in(tmp: Path, dest: Path, names: list[str]) -> None:
     remove ``tmp``: a reader that checks the last name first never sees a mixture."""
     for name in names:
         os.replace(tmp / name, dest / name)
-    _fsync_dir(dest)
+    fsync_dir(dest)
     tmp.rmdir()
-
-
-def _fsync_dir(directory: Path) -> None:
-    """Make the renames into ``directory`` durable, where the platform has directory handles."""
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
