@@ -45,7 +45,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -217,23 +216,12 @@ def export_lerobot(data_dir: str | os.PathLike[str], out_dir: str | os.PathLike[
     by_run = {int(key[0]): g.sort("t") for key, g in frames.group_by("run")}
     # Through a link to a directory the export goes where the link points; the link stays.
     target = Path(os.path.realpath(out))
-    made = staging.make_dirs(target.parent)
-    try:
-        staging.remove_stale_temporaries(target.parent)
-        tmp = staging.temporary_dir(target.parent, target.name)
-        try:
-            _write_export(tmp, data, info, fps, u_names, episodes, by_run)
-            _check_out(out)  # again: another writer may have filled it meanwhile
-            if target.exists():
-                target.rmdir()
-            os.rename(tmp, target)
-        except OSError as exc:
-            staging.raise_named_for(exc, tmp, out)
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)
-    except BaseException:
-        staging.remove_made_dirs(made)
-        raise
+    with staging.staged(target.parent, target.name, out) as tmp:
+        _write_export(tmp, data, info, fps, u_names, episodes, by_run)
+        _check_out(out)  # again: another writer may have filled it meanwhile
+        if target.exists():
+            target.rmdir()
+        os.rename(tmp, target)
     return out
 
 

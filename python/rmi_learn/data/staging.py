@@ -9,13 +9,14 @@ same directory removes it (:func:`remove_stale_temporaries`).
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import re
 import shutil
 import socket
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import NoReturn
 
@@ -128,6 +129,27 @@ def raise_named_for(exc: OSError, tmp: Path, dest: Path) -> NoReturn:
     if exc.errno is None or where is None:
         raise exc
     raise OSError(exc.errno, exc.strerror, str(where)) from exc
+
+
+@contextlib.contextmanager
+def staged(parent: Path, name: str, dest: Path) -> Iterator[Path]:
+    """A fresh temporary directory in ``parent`` (made with its missing folders) for the block
+    to write ``dest`` in and move it into place. Stale temporaries of killed writers in
+    ``parent`` go first; an OSError in the block is re-raised naming ``dest``; the temporary is
+    always removed, and the folders made for it are removed when the block fails."""
+    made = make_dirs(parent)
+    try:
+        remove_stale_temporaries(parent)
+        tmp = temporary_dir(parent, name)
+        try:
+            yield tmp
+        except OSError as exc:
+            raise_named_for(exc, tmp, dest)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    except BaseException:
+        remove_made_dirs(made)
+        raise
 
 
 def parquet_bytes(table: pl.DataFrame, metadata: Mapping[str, str] | None = None) -> bytes:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -169,24 +168,13 @@ def _write_build(
     """Write the dataset's files into ``out``, whole or not at all: they are written into a
     temporary directory inside ``out`` and moved in together, so an error (a full disk)
     leaves an existing ``out`` as it was and removes an ``out`` this build created."""
-    made = staging.make_dirs(out)
-    try:
-        staging.remove_stale_temporaries(out)
-        tmp = staging.temporary_dir(out, "build")
-        try:
-            frames_data, runs_data = staging.parquet_bytes(frame), staging.parquet_bytes(runs)
-            atomic_write_bytes(tmp / "frames.parquet", lambda f: f.write(frames_data))
-            atomic_write_bytes(tmp / "runs.parquet", lambda f: f.write(runs_data))
-            atomic_write_json(tmp / "stats.json", stats.to_json())
-            atomic_write_json(tmp / "dataset.json", info)
-            staging.move_in(tmp, out, list(BUILD_FILES))
-        except OSError as exc:
-            staging.raise_named_for(exc, tmp, out)
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)
-    except BaseException:
-        staging.remove_made_dirs(made)
-        raise
+    with staging.staged(out, "build", out) as tmp:
+        frames_data, runs_data = staging.parquet_bytes(frame), staging.parquet_bytes(runs)
+        atomic_write_bytes(tmp / "frames.parquet", lambda f: f.write(frames_data))
+        atomic_write_bytes(tmp / "runs.parquet", lambda f: f.write(runs_data))
+        atomic_write_json(tmp / "stats.json", stats.to_json())
+        atomic_write_json(tmp / "dataset.json", info)
+        staging.move_in(tmp, out, list(BUILD_FILES))
 
 
 @input_errors(OSError, ValueError)
