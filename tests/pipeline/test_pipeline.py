@@ -52,8 +52,10 @@ def test_presets_load_and_name_every_stage(tmp_path: Path) -> None:
         cfg = load_preset(name)
         stages = pipeline.build_stages(cfg, tmp_path, threads=2)
         order = list(STAGE_ORDER)
-        if cfg.control is not None:  # the optional benchmark runs before the report
+        if cfg.control is not None:  # the optional benchmarks run before the report
             order.insert(order.index("report"), "control")
+        if cfg.control_protocol is not None:
+            order.insert(order.index("report"), "control-protocol")
         if not cfg.ablations:
             order.remove("ablations")
         assert [s.name for s in stages] == order
@@ -183,7 +185,13 @@ def test_failed_stage_resumes_where_it_stopped(
     rec2 = Recorder()
     monkeypatch.setattr(run_mod, "execute_call", rec2)
     run_pipeline(cfg, tmp_path, log=lambda s: None)
-    assert [c[0] for c in rec2.calls] == ["rank", "closed-loop", "control-bench", "report"]
+    assert [c[0] for c in rec2.calls] == [
+        "rank",
+        "closed-loop",
+        "control-bench",
+        "control-bench",
+        "report",
+    ]
     # Third call: nothing left to do.
     rec3 = Recorder()
     monkeypatch.setattr(run_mod, "execute_call", rec3)
@@ -302,6 +310,7 @@ def test_every_stage_runs_its_library_call_with_the_arguments_it_records(
     import torch
 
     import rmi_learn.control_bench as control
+    import rmi_learn.control_bench.feedback as feedback
     from rmi_learn import closed_loop
     from rmi_learn.analysis import physical
     from rmi_learn.analysis import report as reporting
@@ -326,6 +335,7 @@ def test_every_stage_runs_its_library_call_with_the_arguments_it_records(
         (ranking, "rank"),
         (closed_loop, "run_closed_loop"),
         (control, "run_control_bench"),
+        (feedback, "run_protocol_bench"),
         (reporting, "write_report"),
     ):
         monkeypatch.setattr(module, attr, recorder(attr))
@@ -340,7 +350,7 @@ def test_every_stage_runs_its_library_call_with_the_arguments_it_records(
         + ["train"] * (len(pipeline.MAIN_MODELS) + len(pipeline.SCORER_MODELS))
         + ["train"] * len(pipeline.ABLATION_MODELS)
         + ["eval_wm", "train_policy", "train_policy", "rank", "run_closed_loop"]
-        + ["run_control_bench", "write_report"]
+        + ["run_control_bench", "run_protocol_bench", "write_report"]
     )
     # torch's threads are set before each call that runs torch (training, eval, rank, bench).
     assert {c[1] for c in seen if c[0] == "threads"} == {(3,)}
@@ -388,6 +398,15 @@ def test_every_stage_runs_its_library_call_with_the_arguments_it_records(
         "threads": 3,
         "progress": False,
     }
+    _, args, kw = by_name["run_protocol_bench"]
+    assert args == () and kw.pop("log") is not None
+    assert kw == {
+        "protocol": "tiny",
+        "runs": t / "sweep",
+        "out": t / "control_protocol",
+        "workers": 2,
+        "threads": 1,
+    }
     assert by_name["write_report"][1:] == ((t,), {})
     # The markers record the command lines of those calls.
     assert markers["policies"]["commands"][1].endswith("--no-progress --resume")
@@ -395,6 +414,10 @@ def test_every_stage_runs_its_library_call_with_the_arguments_it_records(
         f"rmi control-bench --runs {t / 'sweep'} --data {t / 'dataset'} --wm {t / 'wm'} "
         f"--policy {t / 'policy'} --out {t / 'control'} --states-per-size 1 "
         "--goals-per-state 1 --setpoints 2 --k 2 --receding 16 --threads 3 --no-progress"
+    ]
+    assert markers["control-protocol"]["commands"] == [
+        f"rmi control-bench --protocol tiny --runs {t / 'sweep'} "
+        f"--out {t / 'control_protocol'} --workers 2 --threads 1"
     ]
 
 

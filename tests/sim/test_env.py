@@ -398,3 +398,28 @@ def test_control_dt_of_whole_engine_steps_is_taken(cfg: dict[str, Any]) -> None:
     env = SpongeSqueezeEnv(cfg, control_dt=3 * cfg["dt"])
     assert env.substeps == 3 and env.control_period == 3 * cfg["dt"]
     assert SpongeSqueezeEnv(cfg, control_dt=0.02 + 1e-12).substeps == 10
+
+
+def test_the_sensor_mode_observes_what_the_gripper_measures_with_seeded_noise() -> None:
+    from rmi_learn.sensing import SENSOR_NAMES
+
+    env = SpongeSqueezeEnv(tiny_config(), observation_mode="sensors")
+    assert env.observation_names == SENSOR_NAMES
+    assert env.observation_space.shape == (len(SENSOR_NAMES),)
+    obs, info = env.reset(seed=3)
+    assert obs.shape == (len(SENSOR_NAMES),) and info["mask"].all()
+    steps = [env.step(np.array([120.0], dtype=np.float32)) for _ in range(3)]
+    again, _ = env.reset(seed=3)
+    assert np.array_equal(obs, again)
+    replay = [env.step(np.array([120.0], dtype=np.float32)) for _ in range(3)]
+    assert np.array_equal(steps[-1][0], replay[-1][0])
+    assert "M_L" not in env.observation_names and steps[-1][4]["M_L"] > 0.0
+    plain = SpongeSqueezeEnv(tiny_config())
+    assert plain.observation_names[0] == "M_L"
+
+
+def test_an_unknown_observation_mode_or_a_bad_sensor_setting_is_refused() -> None:
+    with pytest.raises(ValueError, match="observation_mode must be one of privileged, sensors"):
+        SpongeSqueezeEnv(tiny_config(), observation_mode="camera")
+    with pytest.raises(ValueError, match=r"sensors.wrist_N must be in \[0, 10.0\]"):
+        SpongeSqueezeEnv(tiny_config(), observation_mode="sensors", sensors={"wrist_N": -1})

@@ -2,7 +2,7 @@
 //! numpy arrays.
 //!
 //! Column layout of a trajectory = the run-file columns of `docs/data-contract.md` (Run files):
-//! `EXTRAS` (time, phase, v_com_x/y/z, gate_open, M_expelled, lift_height), the 23 `OBS`
+//! `EXTRAS` (time, phase, v_com_x/y/z, gate_open, M_expelled, lift_height, W_x/y/z), the 23 `OBS`
 //! names of y_t, then `ACTIONS` (F_target, v_cmd).
 
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
@@ -16,8 +16,8 @@ use rmi_sph::config::Shape;
 use rmi_sph::Simulation;
 
 /// Recorded quantities outside y_t, in run-file order.
-pub const EXTRAS: [&str; 8] =
-    ["time", "phase", "v_com_x", "v_com_y", "v_com_z", "gate_open", "M_expelled", "lift_height"];
+pub const EXTRAS: [&str; 11] =
+    ["time", "phase", "v_com_x", "v_com_y", "v_com_z", "gate_open", "M_expelled", "lift_height", "W_x", "W_y", "W_z"];
 /// Action channels.
 pub const ACTIONS: [&str; 2] = ["F_target", "v_cmd"];
 
@@ -41,6 +41,9 @@ pub fn observation_dict<'py>(py: Python<'py>, o: &Observation) -> PyResult<Bound
     d.set_item("gate_open", o.gate_open)?;
     d.set_item("M_expelled", o.m_expelled)?;
     d.set_item("lift_height", o.lift_height)?;
+    d.set_item("W_x", o.wrist_load[0])?;
+    d.set_item("W_y", o.wrist_load[1])?;
+    d.set_item("W_z", o.wrist_load[2])?;
     d.set_item("F_target", o.f_target)?;
     d.set_item("v_cmd", o.v_cmd)?;
     Ok(d)
@@ -69,6 +72,9 @@ pub fn columns<'py>(py: Python<'py>, rows: &[Observation]) -> PyResult<Bound<'py
     d.set_item("gate_open", PyArray1::from_vec(py, rows.iter().map(|o| o.gate_open).collect::<Vec<bool>>()))?;
     d.set_item("M_expelled", f(&|o| o.m_expelled))?;
     d.set_item("lift_height", f(&|o| o.lift_height))?;
+    d.set_item("W_x", f(&|o| o.wrist_load[0]))?;
+    d.set_item("W_y", f(&|o| o.wrist_load[1]))?;
+    d.set_item("W_z", f(&|o| o.wrist_load[2]))?;
     for (name, col) in NAMES.iter().zip(obs) {
         d.set_item(*name, PyArray1::from_vec(py, col))?;
     }

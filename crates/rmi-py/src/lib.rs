@@ -85,8 +85,8 @@ fn _raise_error(kind: &str) -> PyResult<()> {
 /// -------
 /// dict
 ///     ``columns``: run-file columns, name -> 1-D numpy array (``time`` s, ``phase`` str,
-///     ``v_com_x/y/z`` m/s, ``gate_open`` bool, ``M_expelled`` kg, ``lift_height`` m, the 23
-///     y_t channels of ``OBSERVATION_NAMES``, ``F_target`` N, ``v_cmd`` m/s); one row at the
+///     ``v_com_x/y/z`` m/s, ``gate_open`` bool, ``M_expelled`` kg, ``lift_height`` m,
+///     ``W_x/y/z`` N (wrist load), the 23 y_t channels of ``OBSERVATION_NAMES``, ``F_target`` N, ``v_cmd`` m/s); one row at the
 ///     start, one every ``record_every`` steps and one at the end, loads averaged over each
 ///     interval. ``outcome``: dict as ``Trial.outcome()``.
 ///

@@ -211,8 +211,8 @@ impl PyTrial {
 
     /// Latest observation: the 23 values of y_t by name (``OBSERVATION_NAMES``; floats, SI,
     /// ``v_res`` NaN without contact) plus ``time`` (s), ``phase`` (str), ``v_com_x/y/z``
-    /// (m/s), ``gate_open`` (bool), ``M_expelled`` (kg), ``lift_height`` (m), ``F_target``
-    /// (N) and ``v_cmd`` (m/s) of the last command. Pad loads are those of the last step.
+    /// (m/s), ``gate_open`` (bool), ``M_expelled`` (kg), ``lift_height`` (m), ``W_x/y/z`` (N,
+    /// wrist load), ``F_target`` (N) and ``v_cmd`` (m/s) of the last command. Pad loads are those of the last step.
     fn observation<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         observation_dict(py, self.trial()?.observation())
     }

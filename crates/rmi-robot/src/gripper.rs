@@ -122,6 +122,11 @@ impl Gripper {
         (fl.max(0.0), fr.max(0.0))
     }
 
+    /// Total force on both pads (N): the wrist load a tared force/torque sensor reads.
+    pub fn wrist_load(&self, b: &Boundary) -> Vector3<f64> {
+        b.bodies[self.left].force + b.bodies[self.right].force
+    }
+
     /// Body velocities for a closing speed per pad (m/s, positive closes) and a common lift
     /// speed (m/s).
     pub fn velocities(&self, closing: f64, lift: f64) -> [(usize, Vector3<f64>); 2] {

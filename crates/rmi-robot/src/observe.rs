@@ -20,6 +20,11 @@
 //!   friction force on the sponge, `v_res` the mean corrected tangential speed (undefined,
 //!   NaN, without contact), and the friction regime is none, stick (all contacts stick), slip
 //!   (all slip) or mixed.
+//! - Wrist load `W`: the force the sponge and its water exert on the two pads together, the
+//!   sum of the pads' body forces (pressure reactions, normal contacts, friction). It is what
+//!   a force/torque sensor between the wrist and the fingers reads once tared for the
+//!   fingers' own weight; carried in the air its vertical component is minus the weight of
+//!   the sponge with everything it carries, expelled water that has not dripped off included.
 
 use crate::controller::Phase;
 use nalgebra::Vector3;
@@ -105,6 +110,8 @@ pub struct Observation {
     pub m_expelled: f64,
     /// Pad displacement along the lift axis since the lift began (m).
     pub lift_height: f64,
+    /// Wrist load: total force of the sponge and its water on both pads (N, world axes).
+    pub wrist_load: [f64; 3],
 }
 
 impl Observation {

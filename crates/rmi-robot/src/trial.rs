@@ -55,7 +55,7 @@ struct Layer {
     controller: Controller,
     gate: Gate,
     obs: Observation,
-    load_sum: (f64, f64, u32),
+    load_sum: LoadSum,
     /// Each phase entered and the retained water at its entry (kg).
     phase_water: Vec<(Phase, f64)>,
     initial_water: f64,
@@ -64,10 +64,21 @@ struct Layer {
     pore_water0: f64,
 }
 
+/// Sums of the pad loads (N) and the wrist load (N) over the engine steps of one recording
+/// interval.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+struct LoadSum {
+    left: f64,
+    right: f64,
+    wrist: [f64; 3],
+    steps: u32,
+}
+
 /// Header of a trial state; a checksum of header and payload follows the payload.
-const MAGIC: &[u8; 8] = b"RMITRL03";
-/// Header of the states written before the checksum (not readable any more).
-const OLD_MAGIC: &[u8; 8] = b"RMITRIAL";
+const MAGIC: &[u8; 8] = b"RMITRL04";
+/// Headers of older states, not readable any more: before the checksum, and before the
+/// wrist load.
+const OLD_MAGICS: [&[u8; 8]; 2] = [b"RMITRIAL", b"RMITRL03"];
 
 /// A trial in progress: the robot environment.
 pub struct Trial {
@@ -98,7 +109,7 @@ impl Trial {
             controller: Controller::new(cfg.hold_force, cfg.squeeze_force),
             gate: Gate::default(),
             obs: Observation::default(),
-            load_sum: (0.0, 0.0, 0),
+            load_sum: LoadSum::default(),
             phase_water: Vec::new(),
             initial_water: 0.0,
             pore_water0: sim.pore_water(0),
@@ -224,6 +235,7 @@ impl Trial {
             gate_open: self.layer.gate.opened_at.is_some(),
             m_expelled: total - m_l,
             lift_height: c.lift_start.map_or(0.0, |h0| self.gripper.height(b) - h0),
+            wrist_load: self.gripper.wrist_load(b).into(),
         };
         (obs, com.dot(&LIFT_AXIS))
     }
@@ -266,8 +278,14 @@ impl Trial {
         let b = self.sim.boundary();
         let loads = self.gripper.loads(b);
         self.layer.gate.filter(&self.cfg.gate, loads);
+        let wrist = self.gripper.wrist_load(b);
         let ls = &mut self.layer.load_sum;
-        *ls = (ls.0 + loads.0, ls.1 + loads.1, ls.2 + 1);
+        ls.left += loads.0;
+        ls.right += loads.1;
+        for (s, w) in ls.wrist.iter_mut().zip(wrist.iter()) {
+            *s += w;
+        }
+        ls.steps += 1;
         let (mut obs, sponge_height) = self.observe(&records);
         let bilateral = obs.contact;
         if self.layer.controller.phase == Phase::Hold {
@@ -329,13 +347,14 @@ impl Trial {
     /// a new averaging interval.
     pub fn take_record(&mut self) -> Observation {
         let mut o = self.layer.obs.clone();
-        let (l, r, n) = self.layer.load_sum;
-        if n > 0 {
-            o.f_l = l / n as f64;
-            o.f_r = r / n as f64;
+        let ls = std::mem::take(&mut self.layer.load_sum);
+        if ls.steps > 0 {
+            let n = ls.steps as f64;
+            o.f_l = ls.left / n;
+            o.f_r = ls.right / n;
             o.f_meas = 0.5 * (o.f_l + o.f_r);
+            o.wrist_load = ls.wrist.map(|w| w / n);
         }
-        self.layer.load_sum = (0.0, 0.0, 0);
         o
     }
 
@@ -393,8 +412,8 @@ impl Trial {
     /// [`RmiError::State`]: a bad header or checksum, or content that does not fit together
     /// (its config, the snapshot's particles and the robot layer).
     pub fn from_bytes(b: &[u8], threads: Option<usize>) -> Result<Self> {
-        if b.len() >= OLD_MAGIC.len() && &b[..OLD_MAGIC.len()] == OLD_MAGIC {
-            return Err(RmiError::State("trial state of an older format (without checksum); not readable".into()));
+        if OLD_MAGICS.iter().any(|m| b.len() >= m.len() && &b[..m.len()] == *m) {
+            return Err(RmiError::State("trial state of an older format; not readable".into()));
         }
         if b.len() < MAGIC.len() || &b[..MAGIC.len()] != MAGIC {
             return Err(RmiError::State("not an rmi trial state (bad header)".into()));

@@ -40,3 +40,12 @@ fn continuation_from_every_step_is_bit_identical() {
     }
     assert!(b.to_bytes() == *states.last().unwrap(), "continuation from step {k} to the end differs");
 }
+
+#[test]
+fn a_state_of_the_format_before_the_wrist_load_is_refused_by_name() {
+    let a = Trial::new(tiny(), Some(1)).unwrap();
+    let mut old = a.to_bytes();
+    old[..8].copy_from_slice(b"RMITRL03");
+    let err = Trial::from_bytes(&old, Some(1)).err().expect("an older state must be refused");
+    assert!(err.to_string().contains("older format"), "{err}");
+}

@@ -1,6 +1,10 @@
 """``rmi control-bench``: the goal-reaching benchmark executed in the simulator (see
 :mod:`rmi_learn.control_bench`).
 
+``rmi control-bench --protocol control --runs SWEEP_DIR --out DIR [--workers 2] [--threads 1]``
+runs the benchmark under a committed protocol (feedback baselines, the sensor mode, held-out
+conditions; :mod:`rmi_learn.control_bench.feedback`); the protocol fixes every other choice.
+
 ``rmi control-bench --runs SWEEP_DIR --data DATASET --wm WM_DIR --policy POLICY_DIR --out DIR
 [--states-per-size 4] [--goals-per-state 2] [--setpoints 5] [--k 8] [--receding 8]
 [--scorers wt,ac-gru] [--no-ensemble] [--receding-scorers wt,ensemble]
@@ -51,23 +55,33 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--runs", required=True, type=Path, metavar="SWEEP_DIR", help="sweep output (index.parquet)"
     )
     parser.add_argument(
-        "--data", required=True, type=Path, metavar="DATASET", help="dataset built from SWEEP_DIR"
+        "--data", default=None, type=Path, metavar="DATASET", help="dataset built from SWEEP_DIR"
     )
     parser.add_argument(
         "--wm",
-        required=True,
+        default=None,
         type=Path,
         metavar="WM_DIR",
         help="directory of `rmi train-wm` runs (or one run): the ranking scorers",
     )
     parser.add_argument(
         "--policy",
-        required=True,
+        default=None,
         type=Path,
         metavar="POLICY_DIR",
         help="directory holding diffusion/ and/or flow/ `rmi train-policy` runs",
     )
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory")
+    parser.add_argument(
+        "--protocol",
+        default=None,
+        metavar="NAME|FILE",
+        help="run under a protocol file (or a shipped one: control); --data, --wm, --policy "
+        "and the model options do not apply",
+    )
+    parser.add_argument(
+        "--workers", type=count(1), default=1, help="processes sharing the runs (--protocol only)"
+    )
     # (option, lowest value, default, help) of the integer options.
     counts = (
         ("--states-per-size", 1, 4, "distinct start states per size (a larger N extends a run)"),
@@ -150,9 +164,71 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+#: Options of the model-based benchmark, with their defaults: a protocol run refuses them.
+MODEL_OPTIONS: dict[str, object] = {
+    "data": None,
+    "wm": None,
+    "policy": None,
+    "states_per_size": 4,
+    "goals_per_state": 2,
+    "setpoints": 5,
+    "k": 8,
+    "receding": 8,
+    "scorers": None,
+    "no_ensemble": False,
+    "receding_scorers": (),
+    "refine_scorers": (),
+    "refine_metrics": ("smooth",),
+    "controllers": None,
+    "sizes": None,
+    "goal_kg": [],
+    "split": "test",
+    "seed": 0,
+}
+
+
+def _run_protocol(args: argparse.Namespace) -> int:
+    from rmi_learn.control_bench.feedback import run_protocol_bench
+    from rmi_learn.errors import InputError
+
+    given = [k for k, d in MODEL_OPTIONS.items() if getattr(args, k, d) != d]
+    if given:
+        flag = "--" + given[0].replace("_", "-")
+        raise InputError(
+            f"{flag} does not apply with --protocol (the protocol fixes the benchmark)"
+        )
+    result = run_protocol_bench(
+        args.protocol,
+        args.runs,
+        args.out,
+        args.workers,
+        threads_of(args.threads),
+        log=lambda msg: print(msg, file=sys.stderr),
+    )
+    brief = {
+        "out": str(args.out),
+        "protocol": result["protocol"]["name"],
+        "median_error_g": {
+            f"{c['size_cm']}cm/{c['task']}": {
+                x["controller"]: x.get("median_g") for x in c["controllers"]
+            }
+            for c in result["summary"]
+        },
+    }
+    print(json.dumps(brief, indent=2))
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark and write its tables; 0 on success, 2 for unusable inputs, 1 when
     another control-bench writes ``--out``."""
+    if args.protocol is not None:
+        return _run_protocol(args)
+    from rmi_learn.errors import InputError
+
+    for name in ("data", "wm", "policy"):
+        if getattr(args, name) is None:
+            raise InputError(f"--{name} is required (or give --protocol)")
     import torch
 
     from rmi_learn.control_bench import run_control_bench

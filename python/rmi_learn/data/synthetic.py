@@ -223,6 +223,9 @@ def _contact_row(
     }
 
 
+#: The toy sponge's dry mass as a fraction of its initial water (the wrist load weighs both).
+_TOY_DRY_FRACTION = 0.13
+
 _NO_CONTACT: dict[str, Any] = {
     "area": 0.0,
     "v_tan": (0.0, 0.0, 0.0),
@@ -246,6 +249,9 @@ def _record(
     f_l = max(0.0, s.f_meas * (1.0 + imb)) * c
     f_r = max(0.0, s.f_meas * (1.0 - imb)) * c
     lifting = s.phase == "lift" and s.attached
+    # Carried in the air, the pads hold the toy sponge and all its water.
+    carried = s.attached and s.phase in ("lift", "waiting", "squeeze")
+    w_z = -GRAVITY * (_TOY_DRY_FRACTION * sponge.m0 + sponge.m0) if carried else 0.0
     contact = _contact_row(s, sponge, strain, lifting, rng) if c else _NO_CONTACT
     onehot = [0.0, 0.0, 0.0, 0.0]
     onehot[contact["regime"]] = 1.0
@@ -259,6 +265,9 @@ def _record(
         "gate_open": s.phase in ("lift", "waiting", "squeeze"),
         "M_expelled": sponge.m0 - s.m_l,
         "lift_height": s.lift_h,
+        "W_x": 0.0,
+        "W_y": 0.0,
+        "W_z": w_z,
         "M_L": s.m_l,
         "S": sat,
         "V_pore": v_pore,
@@ -368,7 +377,8 @@ def simulate_toy_run(
 
 
 _ALL = (
-    "time phase v_com_x v_com_y v_com_z gate_open M_expelled lift_height M_L S V_pore V_sponge w "
+    "time phase v_com_x v_com_y v_com_z gate_open M_expelled lift_height W_x W_y W_z M_L S V_pore "
+    "V_sponge w "
     "F_meas F_L F_R alpha_F A_L A_R c v_tan_x v_tan_y v_tan_z F_fric_x F_fric_y F_fric_z v_res "
     "r_none r_stick r_slip r_mixed F_target v_cmd"
 ).split()

@@ -224,6 +224,9 @@ class PipelineConfig:
     closed_loop: ClosedLoopOptions = field(default_factory=ClosedLoopOptions)
     #: The goal-reaching benchmark's options; None: the preset does not run it.
     control: ControlOptions | None = None
+    #: The protocol (a shipped name or a file) of the benchmark with the feedback baselines
+    #: and the sensor mode (``rmi control-bench --protocol``); None: not run.
+    control_protocol: str | None = None
     raw: dict[str, Any] = field(default_factory=dict, compare=False)
 
 
@@ -236,7 +239,7 @@ _STAGE_KEYS: dict[str, type[StageOptions]] = {
     "rank": RankOptions,
     "closed_loop": ClosedLoopOptions,
 }
-_KEYS = {"name", "description", "grid", "ablations", "control", *_STAGE_KEYS}
+_KEYS = {"name", "description", "grid", "ablations", "control", "control_protocol", *_STAGE_KEYS}
 
 
 def load_preset(
@@ -262,6 +265,10 @@ def load_preset(
         if not isinstance(cfg["control"], dict):
             raise ValueError(f"{source}: control must be an object of command options")
         stages["control"] = ControlOptions.from_json(cfg["control"], f"{source}: control")
+    if "control_protocol" in cfg:
+        if not isinstance(cfg["control_protocol"], str) or not cfg["control_protocol"]:
+            raise ValueError(f"{source}: control_protocol must be a protocol name or file")
+        stages["control_protocol"] = cfg["control_protocol"]
     return PipelineConfig(
         grid=str(cfg["grid"]),
         name=cfg.get("name"),

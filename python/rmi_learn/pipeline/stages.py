@@ -209,6 +209,20 @@ def control_calls(w: StageContext) -> list[Call]:
     return [call("control-bench", run_control_bench, args, torch=True)]
 
 
+def protocol_calls(w: StageContext) -> list[Call]:
+    from rmi_learn.control_bench.feedback import run_protocol_bench
+
+    args = [
+        keyword("protocol", w.cfg.control_protocol),
+        keyword("runs", w.sweep_dir),
+        keyword("out", w.out / "control_protocol"),
+        keyword("workers", w.cfg.sweep.workers or 1),
+        keyword("threads", 1),
+        call_only("log", _log),
+    ]
+    return [call("control-bench", run_protocol_bench, args)]
+
+
 def _control_option(name: str, value: Any) -> Arg:
     """A benchmark option: the preset's text on the command line, a list of names in the
     call for the options of ``_LIST_OPTIONS``."""
@@ -262,6 +276,12 @@ STAGES: tuple[StageSpec, ...] = (
         "goal-reaching benchmark in the simulator",
         control_calls,
         lambda cfg: cfg.control is not None,
+    ),
+    StageSpec(
+        "control-protocol",
+        "goal-reaching benchmark under its protocol: PI baselines, the sensor mode",
+        protocol_calls,
+        lambda cfg: cfg.control_protocol is not None,
     ),
     StageSpec("report", "write report.md and report.html", report_calls),
 )

@@ -26,13 +26,22 @@ unseeded reset draws the trial's seed from the environment's ``np_random``, so e
 differ from one reset to the next (see ``SpongeSqueezeEnv.reset``). Both are in
 [0, ``SEED_MAX``] (2^63 - 1), the engine's range of seeds.
 
-Observation: the 23 values of y_t in ``schema.OBS`` order as float32, with the pad loads
-averaged over the control step. ``v_res`` is undefined without contact (NaN in the engine
-and in run files); the observation holds 0 there and ``info["mask"]`` (bool, 23) is False
-for it, so a model can tell "no contact" from "zero slip". ``info["y"]`` has the values by
-name (None where undefined), plus ``phase``, ``time`` (s), ``M_L`` and ``M_expelled`` (kg),
-``F_target`` (N) and ``v_cmd`` (m/s) of the command the engine applied last, ``goal`` (kg),
-``failure`` (str or None) and ``unstable`` (bool).
+Observation (``observation_mode``, names in ``env.observation_names``):
+
+- ``"privileged"`` (default): the 23 values of y_t in ``schema.OBS`` order as float32, with
+  the pad loads averaged over the control step. ``v_res`` is undefined without contact (NaN
+  in the engine and in run files); the observation holds 0 there and ``info["mask"]`` is
+  False for it, so a model can tell "no contact" from "zero slip".
+- ``"sensors"``: what a parallel gripper with tactile pads and a wrist force/torque sensor
+  measures (``rmi_learn.sensing.SENSOR_NAMES``: width, pad loads, contact areas and flag,
+  shear, stick/slip flags, wrist load), through the noise and latency of ``sensors`` (a
+  :class:`rmi_learn.sensing.SensorModel` or its fields; default its data-sheet defaults),
+  seeded by the sensor model's seed and the episode's trial seed. No M_L, S, V_pore or
+  V_sponge: the reward still scores the true M_L, which ``info`` carries for evaluation only.
+
+``info["y"]`` has the y_t values by name (None where undefined), plus ``phase``, ``time``
+(s), ``M_L`` and ``M_expelled`` (kg), ``F_target`` (N) and ``v_cmd`` (m/s) of the command
+the engine applied last, ``goal`` (kg), ``failure`` (str or None) and ``unstable`` (bool).
 
 Reward: ``-|M_L - goal|`` in kg, the distance of the retained water to the goal mass.
 The goal is, first match wins: ``options["goal"]`` (kg), ``options["goal_fraction"]``, the
@@ -74,6 +83,8 @@ from gymnasium import spaces
 
 import rmi_sph
 from rmi_learn.data.schema import CONTROL_DT, FORCE_LIMIT_N, OBS, PHASES, SEED_MAX, checked_seed
+from rmi_learn.errors import InputError
+from rmi_learn.sensing import SensorModel, SensorStream, check_observation_mode, observation_names
 from rmi_learn.sim.goal import (
     REFERENCE_SQUEEZE_N,
     RELEASE_FRACTION,
@@ -142,6 +153,10 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         ``"rgb_array"``: ``render()`` returns the side view of the particles.
     render_shape : (int, int), default (240, 320)
         Height and width of a rendered frame (px).
+    observation_mode : {"privileged", "sensors"}, default "privileged"
+        The simulator's y_t, or what the gripper's sensors report (module docstring).
+    sensors : SensorModel or mapping of its fields, optional
+        Noise and latency of the ``sensors`` mode (default: ``SensorModel()``).
     """
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 50}
@@ -161,8 +176,20 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         cache_handover: bool = True,
         render_mode: str | None = None,
         render_shape: tuple[int, int] = RENDER_SHAPE,
+        observation_mode: str = "privileged",
+        sensors: SensorModel | Mapping[str, Any] | None = None,
     ) -> None:
         super().__init__()
+        try:
+            self.observation_mode = check_observation_mode(observation_mode)
+            self.sensors = (
+                sensors if isinstance(sensors, SensorModel) else SensorModel.from_mapping(sensors)
+            )
+        except InputError as exc:  # one line naming the field, a ValueError like the others
+            raise ValueError(str(exc)) from None
+        #: The observation's channel names, in order.
+        self.observation_names: tuple[str, ...] = observation_names(self.observation_mode)
+        self._stream: SensorStream | None = None
         # Checked once here (trial_config returns a checked, complete config); every episode
         # builds its Trial from this dict.
         self.config: dict[str, Any] = (
@@ -212,7 +239,9 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
             self.action_space = spaces.Box(
                 self.action_low.astype(np.float32), self.action_high.astype(np.float32)
             )
-        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(len(OBS),), dtype=np.float32)
+        self.observation_space = spaces.Box(
+            -np.inf, np.inf, shape=(len(self.observation_names),), dtype=np.float32
+        )
 
         self.sim: rmi_sph.Trial | None = None
         self.goal = 0.0
@@ -251,10 +280,14 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         assert self.sim is not None
         raw = np.array([record[n] for n in OBS], dtype=np.float64)
         mask = np.isfinite(raw)
-        obs = np.where(mask, raw, 0.0).astype(np.float32)
+        if self._stream is not None:
+            seen = self._stream.observe(record)
+            obs, obs_mask = seen.astype(np.float32), np.ones(seen.size, dtype=bool)
+        else:
+            obs, obs_mask = np.where(mask, raw, 0.0).astype(np.float32), mask
         info: dict[str, Any] = {
             "y": {n: (float(v) if ok else None) for n, v, ok in zip(OBS, raw, mask, strict=True)},
-            "mask": mask,
+            "mask": obs_mask,
             "phase": str(record["phase"]),
             "time": float(record["time"]),
             "M_L": float(record["M_L"]),
@@ -333,6 +366,11 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         sim = self._starting_trial(seed, options)
         record = sim.take_record()
         self.sim = sim
+        self._stream = (
+            SensorStream(self.sensors, (int(sim.config["seed"]),))
+            if self.observation_mode == "sensors"
+            else None
+        )
         water = float(record["M_L"])
         if goal is not None:
             self.goal = goal

@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from rmi_learn.analysis.paper import paper_reference
+from rmi_learn.analysis.report.control_protocol import section_control_protocol
 from rmi_learn.analysis.report.document import Doc
 from rmi_learn.analysis.report.execution import section_closed_loop, section_control
 from rmi_learn.analysis.report.figure_files import FIG_SUBDIR
@@ -46,6 +47,7 @@ def build_report(out_dir: str | os.PathLike[str], validation: Path | None = None
     section_policies(doc, out, figs, paper)
     section_training(doc, out, figs)
     section_closed_loop(doc, out)
+    section_control_protocol(doc, out)
     section_control(doc, out, figs)
     section_validation(doc, out, validation)
     section_config(doc, out)

@@ -1,0 +1,290 @@
+"""The work on one run: replay it once to its start states, then execute every controller
+from each state. Runs are independent, so a pool of processes shares them; each result row
+is bit-identical whatever the pool's size or the engine's thread count."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+import rmi_sph
+from rmi_learn.control_bench.feedback.episode import Controller, Episode, Plant, run_episode
+from rmi_learn.control_bench.feedback.estimators import (
+    WINDOW,
+    Estimator,
+    LearnedEstimate,
+    PrivilegedEstimate,
+    WeightEstimate,
+    WidthEstimate,
+)
+from rmi_learn.control_bench.feedback.fitting import Fits, run_key
+from rmi_learn.control_bench.feedback.held_out import RunInfo, fold_of, substeps_of
+from rmi_learn.control_bench.feedback.laws import PI, Fixed, Hold
+from rmi_learn.sensing import SensorModel, dry_mass
+from rmi_learn.sim.execute import clip_force
+
+#: The setpoint bounds' upper end (N): the gripper's force limit.
+HIGH_N = 400.0
+
+
+@dataclass
+class Snapshot:
+    """A start state: its bytes, the true records of the control steps up to it, and the
+    logged controller's next setpoints (N)."""
+
+    tick: int
+    state: bytes
+    history: list[dict[str, Any]]
+    scripted: list[float]
+
+
+@dataclass
+class RunJob:
+    """What one run's worker needs: the run, its start ticks and roles, the protocol's
+    settings, the fits of each fold its states serve (tuning: every other group's fold;
+    test: its own) and, for test states, its fold's tuned gains per estimator."""
+
+    run: RunInfo
+    ticks: list[tuple[int, str]]
+    protocol: dict[str, Any]
+    sensors: SensorModel
+    fits: dict[str, Fits]
+    gains: dict[str, tuple[float, float]] = field(default_factory=dict)
+    threads: int = 1
+
+
+def replay(
+    run: RunInfo, ticks: list[int], horizon: int, history: int, threads: int
+) -> list[Snapshot]:
+    """Step the run's own trial tick by tick and keep each start tick's state."""
+    sim = rmi_sph.Trial(run.config, num_threads=threads)
+    n = substeps_of(run)
+    records: list[dict[str, Any]] = [sim.take_record()]
+    pending = sorted(ticks)
+    snaps: dict[int, tuple[bytes, list[dict[str, Any]]]] = {}
+    end = pending[-1] + horizon
+    for k in range(1, end + 1):
+        sim.step(n)
+        records.append(sim.take_record())
+        if k in pending:
+            snaps[k] = (sim.get_state(), records[max(0, k + 1 - history) : k + 1])
+    return [
+        Snapshot(
+            k,
+            snaps[k][0],
+            snaps[k][1],
+            [float(r["F_target"]) for r in records[k + 1 : k + 1 + horizon]],
+        )
+        for k in pending
+    ]
+
+
+def _key(job: RunJob, tick: int, task: int) -> tuple[int, ...]:
+    return (*run_key(job.run), tick, task)
+
+
+class StateWork:
+    """The executions from one start state."""
+
+    def __init__(self, job: RunJob, plant: Plant, snap: Snapshot, m_dry: float) -> None:
+        self.job, self.plant, self.snap, self.m_dry = job, plant, snap, m_dry
+        p = job.protocol
+        self.horizon, self.settle = int(p["horizon"]), int(p["settle_ticks"])
+
+    def estimator(self, name: str, fits: Fits | None) -> Estimator:
+        """The estimator of PI controller ``name`` with a fold's ``fits``."""
+        if name == "pi-privileged":
+            return PrivilegedEstimate()
+        assert fits is not None
+        if name == "pi-weight":
+            return WeightEstimate(self.m_dry, fits.weight_offset_kg)
+        if name == "pi-width":
+            return WidthEstimate(fits.width.a, fits.width.b, self.m_dry)
+        return LearnedEstimate(fits.learned.model, self.m_dry)
+
+    def run(self, controller: Controller, sensing: bool, settle: bool, task: int = 0) -> Episode:
+        return run_episode(
+            self.plant,
+            self.snap.state,
+            self.snap.history,
+            controller,
+            self.horizon,
+            self.settle if settle else 0,
+            self.job.sensors if sensing else None,
+            _key(self.job, self.snap.tick, task),
+        )
+
+    def constant(self, c: float, settle: bool) -> Episode:
+        return self.run(Fixed([c]), False, settle)
+
+    def goal(self, lo: Episode, hi: Episode, attr: str, task: int) -> float | None:
+        a, b = getattr(lo, attr), getattr(hi, attr)
+        if a is None or b is None:
+            return None
+        rng = np.random.default_rng(
+            [int(self.job.protocol["goal_seed"]), *_key(self.job, self.snap.tick, task)]
+        )
+        return float(rng.uniform(min(a, b), max(a, b)))
+
+    def pi(
+        self,
+        name: str,
+        fits: Fits | None,
+        goal: float,
+        gains: tuple[float, float],
+        settle: bool,
+        task: int,
+    ) -> Episode:
+        law = PI(
+            self.estimator(name, fits), goal, gains[0], gains[1], self.plant.lo_N, self.plant.hi_N
+        )
+        return self.run(law, name != "pi-privileged", settle, task)
+
+
+def _row(
+    job: RunJob,
+    snap: Snapshot,
+    role: str,
+    task: str,
+    goal: float | None,
+    ctrl: str,
+    e: Episode,
+    **kw: Any,
+) -> dict[str, Any]:
+    attr = "M_L_reach" if task == "reach" else "M_L_settle"
+    m = getattr(e, attr)
+    return {
+        "run_id": job.run.run_id,
+        "size_cm": job.run.size_cm,
+        "porosity": job.run.porosity,
+        "F_hold": job.run.F_hold,
+        "F_squeeze": job.run.F_squeeze,
+        "seed": job.run.seed,
+        "tick": snap.tick,
+        "role": role,
+        "fold": kw.get("fold", fold_of(job.run)),
+        "task": task,
+        "goal_kg": goal,
+        "controller": ctrl,
+        "status": e.status,
+        "M_L_kg": m,
+        "abs_error_g": None if (m is None or goal is None) else abs(m - goal) * 1e3,
+        "peak_force_N": e.peak_force_N,
+        "ki": kw.get("ki"),
+        "kp": kw.get("kp"),
+        "setpoint_N": kw.get("setpoint_N"),
+        "error": e.error,
+    }
+
+
+def _bisect(
+    work: StateWork,
+    lo: float,
+    hi: float,
+    goal: float,
+    attr: str,
+    steps: int,
+    seen: dict[float, Episode],
+) -> tuple[float, Episode]:
+    """Executed bisection over constant setpoints (M_L falls as the grip rises), starting
+    from the executions ``seen``; returns the best executed constant and its episode."""
+    a, b = lo, hi
+    for _ in range(steps):
+        c = 0.5 * (a + b)
+        if c not in seen:
+            seen[c] = work.constant(c, work.settle > 0)
+        m = getattr(seen[c], attr)
+        if m is None:
+            break
+        a, b = (c, b) if m > goal else (a, c)
+    ok = {c: e for c, e in seen.items() if getattr(e, attr) is not None}
+    best = min(sorted(ok), key=lambda c: abs(getattr(ok[c], attr) - goal))
+    return best, ok[best]
+
+
+def tuning_rows(work: StateWork, role: str) -> list[dict[str, Any]]:
+    """Every PI gain candidate on the reach goal (horizon only), for the tuning."""
+    job, snap = work.job, work.snap
+    lo, hi = work.plant.lo_N, work.plant.hi_N
+    e_lo, e_hi = work.constant(lo, False), work.constant(hi, False)
+    goal = work.goal(e_lo, e_hi, "M_L_reach", 0)
+    rows: list[dict[str, Any]] = []
+    if goal is None:
+        return [
+            _row(
+                job,
+                snap,
+                role,
+                "reach",
+                None,
+                "oracle-constant",
+                e_lo if e_lo.status != "ok" else e_hi,
+            )
+        ]
+    names = [c for c in job.protocol["controllers"] if c.startswith("pi-")]
+    for name in names:
+        # The privileged loop needs no fit: one execution serves every fold.
+        fold_fits: dict[str | None, Fits | None] = (
+            {None: None} if name == "pi-privileged" else dict(job.fits.items())
+        )
+        for fold, fits in fold_fits.items():
+            for ki in job.protocol["pi"]["ki"]:
+                for kp in job.protocol["pi"]["kp"]:
+                    e = work.pi(name, fits, goal, (ki, kp), False, 0)
+                    rows.append(
+                        _row(job, snap, role, "reach", goal, name, e, ki=ki, kp=kp, fold=fold)
+                    )
+    return rows
+
+
+def test_rows(work: StateWork, role: str) -> list[dict[str, Any]]:
+    """Every listed controller on each task's goal."""
+    job, snap, p = work.job, work.snap, work.job.protocol
+    lo, hi = work.plant.lo_N, work.plant.hi_N
+    seen = {lo: work.constant(lo, True), hi: work.constant(hi, True)}
+    ctrls = p["controllers"]
+    shared: dict[str, Episode] = {}
+    if "hold" in ctrls:
+        shared["hold"] = work.run(Hold(), True, True)
+    if "scripted" in ctrls:
+        shared["scripted"] = work.run(Fixed(snap.scripted), True, True)
+    rows: list[dict[str, Any]] = []
+    for ti, task in enumerate(p["tasks"]):
+        attr = "M_L_reach" if task == "reach" else "M_L_settle"
+        goal = work.goal(seen[lo], seen[hi], attr, ti)
+        for name, e in shared.items():
+            rows.append(_row(job, snap, role, task, goal, name, e))
+        if goal is None:
+            continue
+        if "oracle-constant" in ctrls:
+            c, e = _bisect(work, lo, hi, goal, attr, int(p["bisection_steps"]), seen)
+            rows.append(_row(job, snap, role, task, goal, "oracle-constant", e, setpoint_N=c))
+        fits = job.fits[fold_of(job.run)]
+        for name in (c for c in ctrls if c.startswith("pi-")):
+            ki, kp = job.gains[name]
+            e = work.pi(name, fits, goal, (ki, kp), True, ti)
+            rows.append(_row(job, snap, role, task, goal, name, e, ki=ki, kp=kp))
+    return rows
+
+
+def run_job(job: RunJob) -> list[dict[str, Any]]:
+    """All rows of one run's start states (tuning rows when its ticks are tuning ones)."""
+    p = job.protocol
+    history = WINDOW + job.sensors.latency_ticks
+    snaps = replay(job.run, [k for k, _ in job.ticks], int(p["horizon"]), history, job.threads)
+    sim = rmi_sph.Trial(job.run.config, num_threads=job.threads)
+    m_dry = dry_mass(sim)
+    lo = clip_force(float(p["setpoint_low_fraction"]) * job.run.F_hold)
+    plant = Plant(sim, substeps_of(job.run), lo, HIGH_N, job.run.F_hold)
+    roles = dict(job.ticks)
+    rows: list[dict[str, Any]] = []
+    for snap in snaps:
+        work = StateWork(job, plant, snap, m_dry)
+        role = roles[snap.tick]
+        rows += tuning_rows(work, role) if role == "tuning" else test_rows(work, role)
+    return rows
+
+
+__all__ = ["HIGH_N", "RunJob", "Snapshot", "replay", "run_job"]
