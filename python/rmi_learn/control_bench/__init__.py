@@ -21,12 +21,32 @@ and the executed terminal water error is compared.
 Modules: :mod:`.inputs` (policies, scorers, candidate start states, goals),
 :mod:`.controllers` (the controllers of one start state), :mod:`.checkpoint` (the
 checkpointed rows), :mod:`.driver` (:func:`run_control_bench`), :mod:`.measures` (the
-statistics, table and figures) and :mod:`.rerank` (ranking the executed samples again).
+statistics, table and figures) and :mod:`.rerank` (ranking the executed samples again);
+:mod:`.feedback` runs the benchmark under a committed protocol with the feedback baselines
+and the sensor mode (``rmi control-bench --protocol``).
 """
 
-from rmi_learn.control_bench.controllers import SETPOINT_LOW_FRACTION
-from rmi_learn.control_bench.driver import run_control_bench
-from rmi_learn.control_bench.inputs import ACTING_PHASES, ControlBenchError
+from typing import Any
+
+#: Public name -> module of the model-based benchmark. They load on first use, so that the
+#: torch-free protocol benchmark (:mod:`.feedback`) imports without torch.
+_LAZY = {
+    "SETPOINT_LOW_FRACTION": "rmi_learn.control_bench.controllers",
+    "run_control_bench": "rmi_learn.control_bench.driver",
+    "ACTING_PHASES": "rmi_learn.control_bench.inputs",
+    "ControlBenchError": "rmi_learn.control_bench.inputs",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "ACTING_PHASES",

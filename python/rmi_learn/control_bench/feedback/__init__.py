@@ -15,7 +15,20 @@ setpoints), :mod:`.estimators` and :mod:`.fitting` (M_L from the sensors), :mod:
 :mod:`.driver` (:func:`run_protocol_bench`).
 """
 
-from rmi_learn.control_bench.feedback.driver import run_protocol_bench
+from typing import Any
+
 from rmi_learn.control_bench.feedback.protocol import CONTROLLERS, load_protocol
+
+
+def __getattr__(name: str) -> Any:
+    # The driver reads sweeps through modules that load torch; the report's section needs
+    # only the table code, so the driver loads on first use.
+    if name == "run_protocol_bench":
+        from rmi_learn.control_bench.feedback.driver import run_protocol_bench
+
+        globals()[name] = run_protocol_bench
+        return run_protocol_bench
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = ["CONTROLLERS", "load_protocol", "run_protocol_bench"]
