@@ -23,7 +23,7 @@ import polars as pl
 
 import rmi_sph
 from rmi_learn.control_bench.feedback.clusters import summarise_cell
-from rmi_learn.control_bench.feedback.fitting import Fits, fit_size
+from rmi_learn.control_bench.feedback.fitting import Fits, fit_size, run_rows
 from rmi_learn.control_bench.feedback.held_out import (
     RunInfo,
     StartTick,
@@ -106,11 +106,13 @@ def _fits(p: Protocol, runs: Sequence[RunInfo], threads: int) -> dict[int, dict[
     """Per size and fold, the estimators fitted on the runs of the fold's other groups."""
     out: dict[int, dict[str, Fits]] = {}
     dry = _dry_masses(runs, threads)
+    # Each run's sensor rows serve every fold that trains on it: read and featurised once.
+    rows = {r.run_id: run_rows(r, p.sensors, p["states"]["phases"], dry[r.run_id]) for r in runs}
     for size in sorted({r.size_cm for r in runs}):
         out[size] = {}
         for fold in folds(runs, size):
             train = [r for r in runs if r.size_cm == size and fold_of(r) != fold]
-            out[size][fold] = fit_size(train, dry, p.sensors, p["states"]["phases"])
+            out[size][fold] = fit_size(train, rows, dry)
     return {s: f for s, f in out.items() if f}
 
 
@@ -266,6 +268,7 @@ def run_protocol_bench(
         tested = {r["run_id"] for r in rows if r["role"] == "test"}
         jobs = _jobs(p, infos, ticks, "test", fits, gains, tested, threads)
         rows = _run_jobs(jobs, workers, rows, save, say, "test")
+        size_of = {r.run_id: r.size_cm for r in infos}
         result = {
             "protocol": p.raw,
             "protocol_digest": p.digest,
@@ -273,7 +276,7 @@ def run_protocol_bench(
             "folds": {str(s): list(f) for s, f in fits.items()},
             "states": {
                 role: {
-                    str(s): sum(1 for t in ticks if t.role == role and _size(infos, t) == s)
+                    str(s): sum(1 for t in ticks if t.role == role and size_of[t.run_id] == s)
                     for s in sorted(fits)
                 }
                 for role in ("tuning", "test")
@@ -288,10 +291,6 @@ def run_protocol_bench(
         atomic_write_json(out_p / "table_protocol.json", result)
         (out_p / "table_protocol.md").write_text(markdown(result))
     return result
-
-
-def _size(runs: Sequence[RunInfo], t: StartTick) -> int:
-    return next(r.size_cm for r in runs if r.run_id == t.run_id)
 
 
 __all__ = ["ROWS_FILE", "choose_gains", "run_protocol_bench", "summary"]

@@ -127,15 +127,11 @@ def fit_ridge_grouped(
 class Estimator:
     """M_L (kg) from the ticks seen so far (the last is the current one)."""
 
-    name = "estimator"
-
     def __call__(self, ticks: Sequence[Tick]) -> float:
         raise NotImplementedError
 
 
 class PrivilegedEstimate(Estimator):
-    name = "privileged"
-
     def __call__(self, ticks: Sequence[Tick]) -> float:
         return float(ticks[-1].record["M_L"])
 
@@ -146,7 +142,6 @@ class WeightEstimate(Estimator):
 
     m_dry: float
     offset: float
-    name = "weight"
 
     def __call__(self, ticks: Sequence[Tick]) -> float:
         obs = ticks[-1].observed
@@ -168,7 +163,6 @@ class WidthEstimate(Estimator):
     a: float
     b: float
     m_dry: float = 0.0
-    name = "width"
 
     def __call__(self, ticks: Sequence[Tick]) -> float:
         obs = ticks[-1].observed
@@ -183,7 +177,6 @@ class LearnedEstimate(Estimator):
 
     model: Ridge
     m_dry: float = 0.0
-    name = "learned"
 
     def __call__(self, ticks: Sequence[Tick]) -> float:
         rows = ticks[-WINDOW:]

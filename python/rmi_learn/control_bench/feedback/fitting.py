@@ -78,12 +78,11 @@ def _rms(e: np.ndarray) -> float:
 
 
 def fit_size(
-    runs: Sequence[RunInfo], dry: Mapping[str, float], sensors: SensorModel, phases: Sequence[str]
+    runs: Sequence[RunInfo], rows: Mapping[str, RunRows], dry: Mapping[str, float]
 ) -> Fits:
     """Fit the weight offset, the width map and the learned estimator on ``runs`` (the
-    training runs of one size and fold); ``dry`` maps run id to the dry sponge's mass
-    (kg)."""
-    rows = {r.run_id: run_rows(r, sensors, phases, dry[r.run_id]) for r in runs}
+    training runs of one size and fold), from their :func:`run_rows` by run id; ``dry`` maps
+    run id to the dry sponge's mass (kg)."""
     m_l = np.concatenate([rows[r.run_id].m_l for r in runs])
     raw = np.concatenate(
         [

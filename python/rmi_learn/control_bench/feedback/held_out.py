@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from rmi_learn.data.runs import read_run
+from rmi_learn.data.runs import read_run, read_run_meta
 from rmi_learn.data.schema import CONTROL_DT
 from rmi_learn.sim.replay import control_substeps
 
@@ -53,7 +53,7 @@ def read_runs(index: Mapping[str, Path]) -> list[RunInfo]:
     """The runs of a sweep index, sorted by id."""
     out = []
     for rid in sorted(index):
-        _, meta = read_run(index[rid])
+        meta = read_run_meta(index[rid])
         p = meta["params"]
         out.append(
             RunInfo(

@@ -22,11 +22,9 @@ from rmi_learn.control_bench.feedback.estimators import (
 from rmi_learn.control_bench.feedback.fitting import Fits, run_key
 from rmi_learn.control_bench.feedback.held_out import RunInfo, fold_of, substeps_of
 from rmi_learn.control_bench.feedback.laws import PI, Fixed, Hold
+from rmi_learn.data.schema import FORCE_LIMIT_N
 from rmi_learn.sensing import SensorModel, dry_mass
 from rmi_learn.sim.execute import clip_force
-
-#: The setpoint bounds' upper end (N): the gripper's force limit.
-HIGH_N = 400.0
 
 
 @dataclass
@@ -57,8 +55,9 @@ class RunJob:
 
 def replay(
     run: RunInfo, ticks: list[int], horizon: int, history: int, threads: int
-) -> list[Snapshot]:
-    """Step the run's own trial tick by tick and keep each start tick's state."""
+) -> tuple[Any, list[Snapshot]]:
+    """Step the run's own trial tick by tick and keep each start tick's state; returns the
+    trial too, which the episodes restore their states into."""
     sim = rmi_sph.Trial(run.config, num_threads=threads)
     n = substeps_of(run)
     records: list[dict[str, Any]] = [sim.take_record()]
@@ -70,7 +69,7 @@ def replay(
         records.append(sim.take_record())
         if k in pending:
             snaps[k] = (sim.get_state(), records[max(0, k + 1 - history) : k + 1])
-    return [
+    return sim, [
         Snapshot(
             k,
             snaps[k][0],
@@ -273,11 +272,10 @@ def run_job(job: RunJob) -> list[dict[str, Any]]:
     """All rows of one run's start states (tuning rows when its ticks are tuning ones)."""
     p = job.protocol
     history = WINDOW + job.sensors.latency_ticks
-    snaps = replay(job.run, [k for k, _ in job.ticks], int(p["horizon"]), history, job.threads)
-    sim = rmi_sph.Trial(job.run.config, num_threads=job.threads)
+    sim, snaps = replay(job.run, [k for k, _ in job.ticks], int(p["horizon"]), history, job.threads)
     m_dry = dry_mass(sim)
     lo = clip_force(float(p["setpoint_low_fraction"]) * job.run.F_hold)
-    plant = Plant(sim, substeps_of(job.run), lo, HIGH_N, job.run.F_hold)
+    plant = Plant(sim, substeps_of(job.run), lo, FORCE_LIMIT_N, job.run.F_hold)
     roles = dict(job.ticks)
     rows: list[dict[str, Any]] = []
     for snap in snaps:
@@ -287,4 +285,4 @@ def run_job(job: RunJob) -> list[dict[str, Any]]:
     return rows
 
 
-__all__ = ["HIGH_N", "RunJob", "Snapshot", "replay", "run_job"]
+__all__ = ["RunJob", "Snapshot", "replay", "run_job"]
