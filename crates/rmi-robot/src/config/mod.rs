@@ -16,3 +16,12 @@ mod trial_config;
 pub use overlay::{field_path, overlay};
 pub use paper::{paper_sponge_size, trial_config, PaperTrial};
 pub use trial_config::TrialConfig;
+
+/// The field an [`rmi_sph::RmiError::InvalidConfig`] names (tests of this module's parts).
+#[cfg(test)]
+fn invalid_field(e: rmi_sph::RmiError) -> String {
+    match e {
+        rmi_sph::RmiError::InvalidConfig { field, .. } => field,
+        other => panic!("not a config error: {other}"),
+    }
+}

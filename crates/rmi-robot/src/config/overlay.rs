@@ -95,12 +95,7 @@ mod tests {
     use super::*;
     use serde_json::json;
 
-    fn field(e: RmiError) -> String {
-        match e {
-            RmiError::InvalidConfig { field, .. } => field,
-            other => panic!("not a config error: {other}"),
-        }
-    }
+    use crate::config::invalid_field as field;
 
     #[test]
     fn tables_merge_and_keep_the_defaults() {

@@ -130,12 +130,7 @@ mod tests {
     use super::*;
     use serde_json::json;
 
-    fn field(e: RmiError) -> String {
-        match e {
-            RmiError::InvalidConfig { field, .. } => field,
-            other => panic!("not a config error: {other}"),
-        }
-    }
+    use crate::config::invalid_field as field;
 
     fn with(overrides: Value) -> Result<TrialConfig> {
         let Value::Object(m) = overrides else { panic!("overrides are a table") };
