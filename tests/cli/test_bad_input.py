@@ -194,6 +194,13 @@ def test_sweep_index_only_refuses_a_missing_directory(
     assert not out.exists()
 
 
+def copied_runs(tmp_path: Path, synthetic_runs_dir: Path) -> tuple[Path, Path]:
+    """A copy of the synthetic runs to damage, and its first run file."""
+    runs = tmp_path / "runs"
+    shutil.copytree(synthetic_runs_dir, runs)
+    return runs, sorted(runs.rglob("run.parquet"))[0]
+
+
 def drop_column(path: Path, column: str) -> None:
     """Rewrite a run file without ``column``, keeping its metadata."""
     meta = pl.read_parquet_metadata(path)
@@ -204,9 +211,7 @@ def drop_column(path: Path, column: str) -> None:
 def test_a_run_file_missing_a_column_is_named(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], synthetic_runs_dir: Path, command: str
 ) -> None:
-    runs = tmp_path / "runs"
-    shutil.copytree(synthetic_runs_dir, runs)
-    bad = sorted(runs.rglob("run.parquet"))[0]
+    runs, bad = copied_runs(tmp_path, synthetic_runs_dir)
     drop_column(bad, "F_meas")
     out = tmp_path / "out"
     argv = ["--runs", str(runs), "--out", str(out)]
@@ -228,9 +233,7 @@ def forge_seed(path: Path, seed: int) -> None:
 def test_dataset_names_a_run_file_whose_seed_is_beyond_the_range(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], synthetic_runs_dir: Path
 ) -> None:
-    runs = tmp_path / "runs"
-    shutil.copytree(synthetic_runs_dir, runs)
-    bad = sorted(runs.rglob("run.parquet"))[0]
+    runs, bad = copied_runs(tmp_path, synthetic_runs_dir)
     forge_seed(bad, SEED_MAX + 1)
     out = tmp_path / "out"
     assert main(["dataset", "build", "--runs", str(runs), "--out", str(out)]) == 2
@@ -251,9 +254,7 @@ def damage_first_row(path: Path) -> None:
 def test_analyze_refusing_its_input_leaves_no_out(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], synthetic_runs_dir: Path, refused: str
 ) -> None:
-    runs = tmp_path / "runs"
-    shutil.copytree(synthetic_runs_dir, runs)
-    bad = sorted(runs.rglob("run.parquet"))[0]
+    runs, bad = copied_runs(tmp_path, synthetic_runs_dir)
     run_id = "size_cm=9/porosity=0.5/F_hold=1/F_squeeze=1/seed=0"
     if refused == "damaged-run-file":
         damage_first_row(bad)
