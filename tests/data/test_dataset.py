@@ -5,12 +5,9 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
 import shutil
 import signal
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -18,8 +15,8 @@ import numpy as np
 import polars as pl
 import pytest
 
+from killed_script import run_killed
 from rmi_learn.cli import main as cli_main
-from rmi_learn.data import staging
 from rmi_learn.data.dataset import (
     CATEGORICAL,
     Stats,
@@ -527,14 +524,7 @@ def test_a_killed_build_leaves_the_previous_dataset_and_its_temporary_goes_next_
         "staging.move_in = lambda *a: os.kill(os.getpid(), signal.SIGKILL)\n"
         "build_dataset(sys.argv[1], sys.argv[2], seed=1)\n"
     )
-    package_root = Path(staging.__file__).resolve().parents[2]
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(package_root), *sys.path])}
-    killed = subprocess.run(
-        [sys.executable, "-c", script, str(synthetic_runs_dir), str(out)],
-        env=env,
-        timeout=300,
-        check=False,
-    )
+    killed = run_killed(script, str(synthetic_runs_dir), str(out))
     assert killed.returncode == -signal.SIGKILL
     hidden = [p for p in out.iterdir() if p.name.startswith(".build.")]
     assert len(hidden) == 1 and (hidden[0] / "dataset.json").is_file()

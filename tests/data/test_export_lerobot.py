@@ -5,11 +5,8 @@ dataset's metadata, and the refusals that leave nothing half-written."""
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import signal
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +14,7 @@ import numpy as np
 import polars as pl
 import pytest
 
+from killed_script import run_killed
 from rmi_learn.cli import main
 from rmi_learn.data import export_lerobot as lerobot
 from rmi_learn.data.schema import OBS, PHASES
@@ -246,14 +244,7 @@ def test_the_temporary_of_a_killed_export_is_removed_by_the_next_one(
         "lerobot.table_stats = lambda table: os.kill(os.getpid(), signal.SIGKILL)\n"
         "lerobot.export_lerobot(sys.argv[1], sys.argv[2])\n"
     )
-    package_root = Path(lerobot.__file__).resolve().parents[2]
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(package_root), *sys.path])}
-    killed = subprocess.run(
-        [sys.executable, "-c", script, str(synthetic_dataset_dir), str(parent / "first")],
-        env=env,
-        timeout=300,
-        check=False,
-    )
+    killed = run_killed(script, str(synthetic_dataset_dir), str(parent / "first"))
     assert killed.returncode == -signal.SIGKILL
     left = [p.name for p in parent.iterdir() if p.name.startswith(".first.")]
     assert len(left) == 1 and (parent / left[0] / "data").is_dir()
