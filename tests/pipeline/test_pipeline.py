@@ -432,3 +432,32 @@ def test_list_options_of_the_benchmark_are_text_on_the_command_line_and_lists_in
     passed = {a.param: a.value for a in bench.args if a.kind == "keyword"}
     assert passed["refine_scorers"] == ["arx-32", "arx-32c"]
     assert passed["receding_scorers"] == ["wt", "arx-32"]
+
+
+def test_seeds_replicate_the_learned_table_ii_models_with_their_own_seed(tmp_path: Path) -> None:
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps({"grid": "tiny", "seeds": 3, "world_models": {"seed": 5}}))
+    stages = {s.name: s for s in pipeline.build_stages(load_preset(path=path), tmp_path, 1)}
+
+    def runs(stage: str) -> dict[str, list[str]]:
+        return {Path(c.argv[c.argv.index("--out") + 1]).name: c.argv for c in
+                stages[stage].calls()}  # fmt: skip
+
+    main, ablations = runs("world-models"), runs("ablations")
+    for name in ("state-gru", "ac-gru"):
+        replicates = {n for n in main if n.startswith(name + "-seed")}
+        assert replicates == {f"{name}-seed6", f"{name}-seed7"}
+    assert {"ac-gru-shuffled-seed6", "ac-gru-shuffled-seed7"} <= set(ablations)
+    assert not any("seed" in n for n in ablations if not n.startswith("ac-gru-shuffled"))
+    for name, argv in {**main, **ablations}.items():
+        seed = name.rsplit("-seed", 1)[1] if "-seed" in name else "5"
+        assert argv.count("--seed") == 1 and argv[argv.index("--seed") + 1] == seed, name
+    assert "--shuffle-actions" in ablations["ac-gru-shuffled-seed7"]
+    (ev,) = stages["eval-wm"].calls()
+    listed = {Path(a).name for a in ev.argv if a.startswith(str(tmp_path / "wm"))}
+    assert {"ac-gru-seed6", "state-gru-seed7", "ac-gru-shuffled-seed6"} <= listed
+    assert "arx-32" not in listed  # the scorers are not table rows
+    for bad in (0, 11, "3", True, 2.0):
+        path.write_text(json.dumps({"grid": "tiny", "seeds": bad}))
+        with pytest.raises(ValueError, match="seeds must be a whole number from 1 to 10"):
+            load_preset(path=path)

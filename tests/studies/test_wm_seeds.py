@@ -52,9 +52,10 @@ def test_report_of_two_seeds(
         assert list(rows) == ["Baseline", "mlp-s0", "mlp-s1", "average of 2"]
         for s in m.STEPS:
             key = f"water_mae_g@{s}"
-            # |mean(z) - t| <= mean |z_i - t| element by element, so also in the mean.
+            # |mean(z) - t| <= mean |z_i - t| element by element, so also in the mean, up to
+            # the float32 rounding of forecasts in grams (relative 1e-7 per operation).
             members = (rows["mlp-s0"][key] + rows["mlp-s1"][key]) / 2
-            assert rows["average of 2"][key] <= members + 1e-6
+            assert rows["average of 2"][key] <= members * (1 + 1e-6)
         assert rows["mlp-s0"] != rows["mlp-s1"]
     with pytest.raises(SystemExit):
         m.main(["--runs", runs[0], "--data", str(synthetic_dataset_dir)])

@@ -4,7 +4,8 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
 from typing import Any
 
 from rmi_learn.pipeline.calls import Arg, keyword
@@ -22,6 +23,8 @@ class ModelRun:
     state_groups: str = "ALL"
     horizon: int | None = None
     causal: bool = False
+    #: The training seed of a replicate (None: the preset's ``world_models.seed``).
+    seed: int | None = None
 
     def args(self) -> list[Arg]:
         """The arguments of ``rmi train-wm`` (:func:`rmi_learn.world_models.training.train`)
@@ -33,11 +36,13 @@ class ModelRun:
             for key, value in (model_args or {}).items()
             for word in ("--model-arg", f"{key}={json.dumps(value)}")
         ]
+        seed = [] if self.seed is None else [keyword("seed", self.seed)]
         return [
             keyword("model", self.model, ["--model", self.model]),
             keyword("shuffle_actions", self.shuffle_actions),
             keyword("state_groups", self.state_groups, groups),
             keyword("model_args", model_args, spelled),
+            *seed,
         ]
 
     def model_args(self) -> dict[str, Any] | None:
@@ -69,3 +74,23 @@ ABLATION_MODELS: dict[str, ModelRun] = {
     "ac-gru-LS+G": ModelRun("ac-gru", state_groups="LS+G"),
     "ac-gru-LS+G+C": ModelRun("ac-gru", state_groups="LS+G+C"),
 }
+
+#: The learned models of Table II whose findings the report states (action conditioning
+#: against persistence, against the same network without the command, against shuffled
+#: commands): a preset's ``seeds`` trains each that many times.
+REPLICATED: tuple[str, ...] = ("state-gru", "ac-gru", "ac-gru-shuffled")
+
+
+def with_replicates(
+    models: Mapping[str, ModelRun], seeds: int, first_seed: int
+) -> dict[str, ModelRun]:
+    """``models`` and, for each of :data:`REPLICATED` among them, ``seeds - 1`` more runs
+    that differ only in the training seed (``first_seed + k``), in directories named
+    ``NAME-seedK``; the evaluation averages the runs of one cell."""
+    out = dict(models)
+    for name in REPLICATED:
+        if name in models:
+            for k in range(1, seeds):
+                run = replace(models[name], seed=first_seed + k)
+                out[f"{name}-seed{first_seed + k}"] = run
+    return out

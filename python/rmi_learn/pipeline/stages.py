@@ -29,7 +29,13 @@ from rmi_learn.pipeline.calls import (
     positional,
 )
 from rmi_learn.pipeline.config import PipelineConfig
-from rmi_learn.pipeline.models import ABLATION_MODELS, MAIN_MODELS, SCORER_MODELS, ModelRun
+from rmi_learn.pipeline.models import (
+    ABLATION_MODELS,
+    MAIN_MODELS,
+    SCORER_MODELS,
+    ModelRun,
+    with_replicates,
+)
 
 OBJECTIVES: tuple[str, ...] = ("diffusion", "flow")
 #: The benchmark's options that name several things, comma-separated in a preset and on the
@@ -62,6 +68,12 @@ class StageContext:
     @property
     def data(self) -> Path:
         return self.out / "dataset"
+
+    def replicated(self, models: Mapping[str, ModelRun]) -> dict[str, ModelRun]:
+        """``models`` with the preset's seed replicates
+        (:func:`rmi_learn.pipeline.models.with_replicates`)."""
+        first = self.cfg.world_models.seed or 0
+        return with_replicates(models, self.cfg.seeds, first)
 
     def threads_flag(self) -> Arg:
         """``--threads N`` of a call whose threads the pipeline sets (torch's) or that takes
@@ -117,16 +129,20 @@ def world_model_calls(models: Mapping[str, ModelRun], w: StageContext) -> list[C
     from rmi_learn.world_models import training
 
     given = w.cfg.world_models.given()
+    # A replicate sets its own seed.
+    unseeded = {k: v for k, v in given.items() if k != "seed"}
     return [
         call(
             "train-wm",
             training.train,
             run.args(),
             keyword("data", w.data),
-            _training_args(w, keyword("out", w.out / "wm" / name), given),
+            _training_args(
+                w, keyword("out", w.out / "wm" / name), given if run.seed is None else unseeded
+            ),
             torch=True,
         )
-        for name, run in models.items()
+        for name, run in w.replicated(models).items()
     ]
 
 
@@ -135,7 +151,8 @@ def eval_calls(w: StageContext) -> list[Call]:
 
     given = w.cfg.eval.given()
     latency = given.pop("latency", True)
-    names = list(MAIN_MODELS) + (list(ABLATION_MODELS) if w.cfg.ablations else [])
+    names = list(w.replicated(MAIN_MODELS))
+    names += list(w.replicated(ABLATION_MODELS)) if w.cfg.ablations else []
     runs = [str(w.out / "wm" / n) for n in names]
     args = [
         positional("--runs", runs, ["--runs", *runs]),

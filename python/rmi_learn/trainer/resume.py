@@ -27,11 +27,6 @@ def check_resume_config(
     same values of the ``resume_fixed`` extra settings (``resume_legacy`` gives those a first
     call did not record)."""
     old = read_config(out_dir)
-    if old.get("model") != json.loads(json.dumps(new["model"])):
-        raise ValueError(
-            f"cannot resume {out_dir}: the model configuration differs "
-            f"({old.get('model')} vs {new['model']})"
-        )
     defaults = TrainConfig().to_json()
     old_train = {**defaults, **(old.get("train") or {})}
     old_t = {k: v for k, v in old_train.items() if k not in RESUME_FREE}
@@ -46,3 +41,10 @@ def check_resume_config(
                 f"cannot resume {out_dir}: {key} was {old_extra[key]!r} in the first "
                 f"call, now {new['extra'][key]!r}"
             )
+    # After the settings a user gives: a model measured on other data (its delta scale)
+    # differs because of them, and the setting names the cause.
+    if old.get("model") != json.loads(json.dumps(new["model"])):
+        raise ValueError(
+            f"cannot resume {out_dir}: the model configuration differs "
+            f"({old.get('model')} vs {new['model']})"
+        )

@@ -7,7 +7,8 @@ model from a run directory written by ``rmi train-wm`` (``config.json`` +
 ``model.safetensors``; no pickles) and returns ``(model, config)`` in eval mode. Training
 is :mod:`.training` (``rmi train-wm``; its settings, which import no torch, are
 :mod:`.training_settings`), evaluation :mod:`.evaluation` (``rmi eval-wm``) at the horizons
-of :mod:`.horizons`.
+of :mod:`.horizons`, and the paper's findings checked on its records :mod:`.findings`
+(no torch either).
 """
 
 from __future__ import annotations

@@ -162,11 +162,27 @@ class WorldModel(nn.Module):
         keep = obs_keep(state_groups)
         self.register_buffer("obs_keep", keep, persistent=False)
         self.register_buffer("z_keep", keep[list(CONTINUOUS_INDEX)].clone(), persistent=False)
+        self.register_buffer("delta_scale", torch.ones(N_Z), persistent=False)
         self.classify = bool(keep[CONTACT_INDEX] > 0)
+
+    def set_delta_scale(self, scale: Any) -> None:
+        """Set the unit of each continuous channel's predicted change per step, (18,) in
+        standardised units (see :func:`step_scale`): the network's state-change outputs are
+        multiplied by it. With unit outputs for every channel, one optimiser step moves a slow
+        channel's forecast (retained water changes by a few hundredths of its spread in a
+        horizon) by as little as a fast one's, relative to how far each moves. Models that
+        accumulate no predicted change ignore it."""
+        values = torch.as_tensor(scale, dtype=torch.float32).reshape(-1)
+        if values.shape != (N_Z,) or not bool(torch.all(torch.isfinite(values) & (values > 0))):
+            raise ValueError(f"delta_scale must be {N_Z} positive finite numbers, got {scale!r}")
+        self.delta_scale.copy_(values)
 
     def config(self) -> dict[str, Any]:
         """JSON that rebuilds this model with :func:`rmi_learn.world_models.build`."""
-        return {"kind": self.kind, "state_groups": self.state_groups}
+        cfg: dict[str, Any] = {"kind": self.kind, "state_groups": self.state_groups}
+        if not bool(torch.all(self.delta_scale == 1.0)):
+            cfg["delta_scale"] = [float(v) for v in self.delta_scale]
+        return cfg
 
     @classmethod
     def check_arguments(cls, args: Mapping[str, Any]) -> None:
@@ -305,6 +321,27 @@ def change_scale(ws: Any, batch_size: int = 1024, floor: float = 1e-3) -> torch.
         d = (b["target"] - z0).to(torch.float64)
         total += (m * d * d).sum(dim=(0, 1))
         count += m.sum(dim=(0, 1))
+    rms = (total / count.clamp_min(1.0)).sqrt()
+    return rms.clamp_min(floor).to(torch.float32)
+
+
+def step_scale(ws: Any, batch_size: int = 1024, floor: float = 1e-4) -> torch.Tensor:
+    """Root-mean-square change of each continuous channel from one control step to the next,
+    (18,), standardised units: over the windows of ``ws``, the steps ``z_t -> z_{t+1}`` and
+    ``z_{t+k} -> z_{t+k+1}`` of every forecast where both ends are valid, floored at
+    ``floor``. The unit of the learned models' predicted change
+    (:meth:`WorldModel.set_delta_scale`)."""
+    total = torch.zeros(N_Z, dtype=torch.float64)
+    count = torch.zeros(N_Z, dtype=torch.float64)
+    for s in range(0, len(ws), batch_size):
+        b = ws.batch(np.arange(s, min(s + batch_size, len(ws))))
+        z = torch.cat([last_z(b["hist"]).unsqueeze(1), b["target"]], dim=1).to(torch.float64)
+        m0 = b["hist_mask"][:, -1, list(CONTINUOUS_INDEX)].unsqueeze(1)
+        m = torch.cat([m0, b["target_mask"]], dim=1).to(torch.float64)
+        d = z[:, 1:] - z[:, :-1]
+        both = m[:, 1:] * m[:, :-1]
+        total += (both * d * d).sum(dim=(0, 1))
+        count += both.sum(dim=(0, 1))
     rms = (total / count.clamp_min(1.0)).sqrt()
     return rms.clamp_min(floor).to(torch.float32)
 

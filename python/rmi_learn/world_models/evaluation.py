@@ -25,6 +25,7 @@ from rmi_learn.errors import input_errors
 from rmi_learn.trainer import RESUME_FREE, count_parameters
 from rmi_learn.world_models.baseline import BaselineWM, SetpointReadoutWM
 from rmi_learn.world_models.common import FORCE, N_FRIC, N_U, WATER, ShuffledActions
+from rmi_learn.world_models.findings import lookup
 from rmi_learn.world_models.horizons import HORIZON_STEPS, MAIN_STEP, horizon_label
 from rmi_learn.world_models.registry import DISPLAY_NAMES, load
 from rmi_learn.world_models.training_settings import RESUME_LEGACY
@@ -193,15 +194,6 @@ def _fmt(v: float | None, digits: int = 2) -> str:
     if v is None or not np.isfinite(v):
         return "–"
     return f"{v:.{digits}f}"
-
-
-def lookup(results: list[dict[str, Any]], **key: Any) -> dict[str, Any] | None:
-    """The first record of ``results`` whose fields equal ``key`` (e.g. ``size_cm=8,
-    kind="baseline"``), or None."""
-    for r in results:
-        if all(r.get(k) == v for k, v in key.items()):
-            return r
-    return None
 
 
 def _metric(rec: dict[str, Any] | None, name: str) -> float | None:
@@ -544,12 +536,14 @@ def _evaluate_cells(
 def _setting(cfg: dict[str, Any]) -> dict[str, Any]:
     """What a run's config says of its model and training, less the seed (and the dataset
     path: the standardisation statistics are checked against the dataset instead; and the
-    loss's channel scale, measured on the training windows, which a debug run draws by seed)."""
+    loss's channel scale and the model's delta scale, measured on the training windows, which
+    a debug run draws by seed)."""
+    model = {k: v for k, v in (cfg.get("model") or {}).items() if k != "delta_scale"}
     train = {k: v for k, v in (cfg.get("train") or {}).items() if k not in RESUME_FREE}
     train.pop("seed", None)
     extra = {**RESUME_LEGACY, **(cfg.get("extra") or {})}
     extra = {k: v for k, v in extra.items() if k not in ("seed", "data", "channel_scale")}
-    return {"model": cfg.get("model"), "train": train, "extra": extra}
+    return {"model": model, "train": train, "extra": extra}
 
 
 def eval_wm(

@@ -3,7 +3,8 @@
 A 2-layer GRU (width 128) encodes the history [y, m]; a 2-layer GRU decoder (GRU cells)
 starts from its final hidden state and steps through the horizon. Decoder input at step tau:
 [y_hat_{t+tau-1}, m_hat_{t+tau-1}, E_u(u_{t+tau-1})] (State-GRU-WM drops E_u). D_z predicts the
-change of the standardised continuous state, accumulated from z_t; separate heads give the
+change of the standardised continuous state in units of each channel's step-to-step change
+(``delta_scale``), accumulated from z_t; separate heads give the
 contact and friction logits. The first step's input is the latest observation and its mask;
 later inputs are the model's own predictions (contact probability, friction probabilities)
 marked valid, or, with teacher forcing, the ground truth with its mask.
@@ -150,7 +151,7 @@ class GRUWorldModel(WorldModel):
                 x = h[i]
             dz, c_logit, f_logit = self.head(x).split((N_Z, 1, N_FRIC), dim=-1)
             c_logit = c_logit[:, 0]
-            z = z + dz
+            z = z + dz * self.delta_scale
             zs.append(z)
             cs.append(c_logit)
             fs.append(f_logit)
@@ -195,12 +196,13 @@ class GRUWorldModel(WorldModel):
         self, hist: torch.Tensor, hist_mask: torch.Tensor, actions: torch.Tensor
     ) -> dict[str, torch.Tensor]:
         """The free rollout in one native call (weights copied once per weight change)."""
-        key = tuple((p.data_ptr(), p._version) for p in self.parameters())
+        key = tuple((p.data_ptr(), p._version) for p in (*self.parameters(), self.delta_scale))
         cached: tuple[Any, Any] | None = getattr(self, "_native_cache", None)
         if cached is None or cached[0] != key:
+            tensors = dict(self.state_dict())
+            tensors["head.weight"], tensors["head.bias"] = self._scaled_head()
             state = {
-                k: v.detach().to(torch.float32).contiguous().numpy()
-                for k, v in self.state_dict().items()
+                k: v.detach().to(torch.float32).contiguous().numpy() for k, v in tensors.items()
             }
             fc = _native_class()(
                 state,
@@ -222,6 +224,12 @@ class GRUWorldModel(WorldModel):
             "friction_logit": torch.from_numpy(f),
         }
 
+    def _scaled_head(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The heads' weight and bias with :attr:`delta_scale` folded into the state-change
+        rows, so that the inference rollouts apply the same unit as ``forward``."""
+        row = torch.cat([self.delta_scale, self.delta_scale.new_ones(1 + N_FRIC)])
+        return self.head.weight * row.unsqueeze(1), self.head.bias * row
+
     def _cells(self) -> list[nn.GRUCell]:
         return [cast(nn.GRUCell, c) for c in self.decoder]
 
@@ -230,7 +238,7 @@ class GRUWorldModel(WorldModel):
         one of them changed (optimiser steps and ``load_state_dict`` bump ``_version``)."""
         key = tuple(
             (p.data_ptr(), p._version)
-            for p in (*self.decoder.parameters(), *self.head.parameters())
+            for p in (*self.decoder.parameters(), *self.head.parameters(), self.delta_scale)
         )
         cached: tuple[Any, _PackedDecoder] | None = getattr(self, "_packed_cache", None)
         if cached is not None and cached[0] == key:
@@ -242,11 +250,12 @@ class GRUWorldModel(WorldModel):
         w_m = c0.weight_ih[:, N_OBS : 2 * N_OBS]
         w_q = torch.zeros_like(w_y)
         w_q[:, ASSEMBLE_INDEX.to(w_y.device)] = w_y * keep
+        head_w, head_b = self._scaled_head()
         w_out, b_out = [], []
         for i, cell in enumerate(cells):
             above = cells[i + 1] if i + 1 < len(cells) else None
-            above_w = above.weight_ih if above is not None else self.head.weight
-            above_b = above.bias_ih if above is not None else self.head.bias
+            above_w = above.weight_ih if above is not None else head_w
+            above_b = above.bias_ih if above is not None else head_b
             w_out.append(torch.cat([above_w, cell.weight_hh], 0).t().contiguous())
             b_out.append(torch.cat([above_b, cell.bias_hh]))
         packed = _PackedDecoder(

@@ -45,7 +45,7 @@ class ACMLPWM(WorldModel):
         n = hist.shape[0]
         x = torch.cat([hist[:, -1], hist_mask[:, -1], actions.reshape(n, -1)], dim=-1)
         feat = self.body(x)
-        dz = self.head_z(feat).view(n, h, N_Z)
+        dz = self.head_z(feat).view(n, h, N_Z) * self.delta_scale
         return {
             "z": last_z(hist).unsqueeze(1) + torch.cumsum(dz, dim=1),
             "contact_logit": self.head_c(feat),

@@ -38,14 +38,19 @@ DISPLAY_NAMES: dict[str, str] = {
 
 
 def build(config: dict[str, Any]) -> WorldModel:
-    """A fresh model from ``{"kind": ..., **constructor arguments}``; ValueError naming an
+    """A fresh model from ``{"kind": ..., **constructor arguments}`` and, for a trained
+    model, its ``delta_scale`` (:meth:`WorldModel.set_delta_scale`); ValueError naming an
     argument of the wrong kind or out of range (see :meth:`WorldModel.check_arguments`)."""
     cfg = dict(config)
     kind = cfg.pop("kind")
     if kind not in MODELS:
         raise ValueError(f"unknown world model {kind!r}; known: {sorted(MODELS)}")
+    delta_scale = cfg.pop("delta_scale", None)
     MODELS[kind].check_arguments(cfg)
-    return MODELS[kind](**cfg)
+    model = MODELS[kind](**cfg)
+    if delta_scale is not None:
+        model.set_delta_scale(delta_scale)
+    return model
 
 
 def load(out_dir: str | Path, which: str = "model") -> tuple[WorldModel, dict[str, Any]]:

@@ -93,7 +93,10 @@ def train(
     decaying linearly from 1 to 0 over ``tf_epochs`` epochs for the recurrent decoders (whose
     early-stopping patience counts only epochs after that decay), and checkpoint selection on
     validation free-rollout water MAE (g) at 1.28 s (Transformer: mean over
-    0.16/0.32/0.64/1.28 s). Linear-ARX is fitted in closed form; the Baseline only
+    0.16/0.32/0.64/1.28 s). The learned models predict each channel's change in units
+    of its step-to-step RMS change in the training windows
+    (:meth:`~rmi_learn.world_models.common.WorldModel.set_delta_scale`, recorded in the
+    model's config). Linear-ARX is fitted in closed form; the Baseline only
     writes its config. ``model_args`` overrides constructor arguments (e.g. ``hidden``,
     ``d_model``); an unknown name raises TypeError. ``horizon``: the forecast length of the
     training and validation windows in control steps (default: a lookahead model's fixed
@@ -133,6 +136,7 @@ def train(
     if not net.trainable:
         validate = _validation(val_ws, stats.z_std, horizon, val_windows, device, None)
         return _closed_form(net, model, out, train_ws, validate, extra, resume, tensorboard)
+    _set_delta_scale(net, train_ws)
     d = DEFAULTS[model]
     extra["tf_epochs"] = tf_epochs
     if water_weight is None:
@@ -275,6 +279,16 @@ def _validation(
         return {f"val_{k}": v for k, v in r.items()}
 
     return validate
+
+
+def _set_delta_scale(net: Any, train_ws: Any) -> None:
+    """Give ``net``'s predicted changes the unit of each channel's step-to-step change in
+    the training windows (:func:`rmi_learn.world_models.common.step_scale`); config.json
+    records it with the architecture (a resume of a run trained without it is refused as
+    another model)."""
+    from rmi_learn.world_models.common import step_scale
+
+    net.set_delta_scale(step_scale(train_ws))
 
 
 def _losses(net: Any, train_ws: Any, extra: dict[str, Any], tf_epochs: int) -> tuple[Any, Any]:

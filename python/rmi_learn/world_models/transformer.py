@@ -123,7 +123,7 @@ class TransformerWM(WorldModel):
         o = self.decoder(q, memory, tgt_mask=self.causal[:h, :h], tgt_is_causal=True)
         z0 = last_z(hist).repeat_interleave(n // b, dim=0)
         return {
-            "z": z0.unsqueeze(1) + torch.cumsum(self.head_z(o), dim=1),
+            "z": z0.unsqueeze(1) + torch.cumsum(self.head_z(o) * self.delta_scale, dim=1),
             "contact_logit": self.head_c(o)[..., 0],
             "friction_logit": self.head_f(o).view(n, h, N_FRIC),
         }

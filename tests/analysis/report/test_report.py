@@ -140,3 +140,46 @@ def test_report_html_embeds_its_figures(tmp_path: Path) -> None:
     assert png in embedded
     # The Markdown report keeps linking the figure files beside it.
     assert "](figures/fig_ranking.png)" in md.read_text()
+
+
+def test_report_says_which_table_ii_findings_hold_with_the_range_over_seeds(
+    tmp_path: Path,
+) -> None:
+    def rec(kind: str, size: int, *water: float, shuffled: bool = False) -> dict[str, Any]:
+        out: dict[str, Any] = {"kind": kind, "state_groups": "ALL", "shuffled": shuffled,
+                               "size_cm": size, "method": kind, "params": 0,
+                               "metrics": {"water_mae_g@32": sum(water) / len(water)}}  # fmt: skip
+        if len(water) > 1:
+            out["metrics_per_seed"] = [{"water_mae_g@32": w} for w in water]
+        return out
+
+    results = [
+        rec("baseline", 8, 10.0),
+        rec("ac-gru", 8, 4.0, 5.0, 6.0),
+        rec("baseline", 12, 9.0),
+        rec("ac-gru", 12, 8.0, 9.5, 11.0),
+    ]
+    _write(tmp_path / "tables" / "wm" / "results.json", results)
+    md, _ = write_report(tmp_path)
+    text = md.read_text()
+    assert "| AC-GRU-WM below the Baseline (persistence) | holds: 5.0 [4.0, 6.0] vs 10.0 | – " \
+        "| does not hold: 9.5 [8.0, 11.0] vs 9.0 |" in text  # fmt: skip
+    assert "Not on these data: AC-GRU-WM below the Baseline (persistence) on the 12 cm " \
+        "sponge (9.5 g against 9.0 g)." in text  # fmt: skip
+
+
+def test_report_checks_the_ranking_claim_and_puts_the_executed_errors_beside_it(
+    tmp_path: Path,
+) -> None:
+    rows = [
+        {"method": "Flow matching, first sample", "8": 4.0, "10": 4.0, "12": None},
+        {"method": "Flow matching + W_T", "8": 1.5, "10": 3.0, "12": 1.0},
+    ]
+    _write(tmp_path / "tables" / "rank" / "table3_ranking.json", {"rows": rows, "k": 8})
+    _write(
+        tmp_path / "closed_loop" / "table_closed_loop.json",
+        {"sizes": {"8": {"flow": {"first_real_g": 3.0, "selected_real_g": 5.5}}}},
+    )
+    text = write_report(tmp_path)[0].read_text()
+    row = "| Flow matching | holds: 0.38; executed 5.5 vs 3.0 g | does not hold: 0.75 | – |"
+    assert row in text

@@ -11,6 +11,7 @@ from rmi_learn.analysis.report.cells import SIZES, fmt, ours_then_paper
 from rmi_learn.analysis.report.document import Doc
 from rmi_learn.analysis.report.figure_files import FIG_SUBDIR, headless_pyplot, save_fig
 from rmi_learn.analysis.report.inputs import note_missing, read_json
+from rmi_learn.world_models.findings import Finding, paper_findings
 
 
 def _wm_rows(
@@ -73,6 +74,7 @@ def section_world_models(doc: Doc, out: Path, figs: Path, paper: dict[str, Any])
         "Rows starting with 'paper:' are the paper's numbers. fric. = balanced accuracy over "
         "the four friction classes.",
     )
+    _findings(doc, results)
     t4 = read_json(wm_dir / "table4.json")
     doc.h(3, "Table IV: state ablation of AC-GRU-WM (water MAE, g, 0.64 s)")
     doc.table(
@@ -88,6 +90,45 @@ def section_world_models(doc: Doc, out: Path, figs: Path, paper: dict[str, Any])
     rel = _horizon_figure(results, figs)
     if rel:
         doc.img(rel, "Forecast water error vs horizon on the test split, per sponge size")
+
+
+def _finding_cell(f: Finding) -> str:
+    def spread(values: tuple[float, ...]) -> str:
+        return "" if len(values) < 2 else f" [{min(values):.1f}, {max(values):.1f}]"
+
+    verdict = "holds" if f.holds else "does not hold"
+    if len(f.ours_per_seed) > 1 and f.holds and not f.seeds_agree:
+        verdict += " (not for every seed)"
+    return (
+        f"{verdict}: {f.ours:.1f}{spread(f.ours_per_seed)} vs "
+        f"{f.other:.1f}{spread(f.other_per_seed)}"
+    )
+
+
+def _findings(doc: Doc, results: list[dict[str, Any]]) -> None:
+    """Whether the paper's Table II findings hold on these data, per size, with the range
+    over training seeds; one line for each that does not."""
+    found = paper_findings(results)
+    if not found:
+        return
+    names = list(dict.fromkeys(f.finding for f in found))
+    cells = {(f.finding, f.size_cm): f for f in found}
+    doc.h(3, "The paper's Table II findings on these data (water MAE, g, 0.64 s)")
+    doc.table(
+        ["finding"] + [f"{s} cm" for s in SIZES],
+        [
+            [n] + [_finding_cell(cells[n, s]) if (n, s) in cells else "–" for s in SIZES]
+            for n in names
+        ],
+        "Mean over the training seeds of each row, the range over seeds in brackets; 'not "
+        "for every seed': some seed of the first row is above some seed of the second.",
+    )
+    for f in found:
+        if not f.holds:
+            doc.p(
+                f"Not on these data: {f.finding} on the {f.size_cm} cm sponge "
+                f"({f.ours:.1f} g against {f.other:.1f} g)."
+            )
 
 
 def _horizon_figure(results: list[dict[str, Any]], figs: Path) -> str | None:
