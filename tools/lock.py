@@ -1,6 +1,6 @@
 """Re-resolve requirements-dev.txt, the exact versions `make setup` installs.
 
-pip's resolver works out the project's `test`, `learn` and `ray` extras, the build backend
+pip's resolver works out the project's `test`, `learn`, `ray` and `lerobot` extras, the build backend
 (maturin, with pyproject.toml's range) and pip itself against PyPI, for this interpreter and
 platform. It reads package metadata only: no wheel is downloaded, nothing is installed (about
 20 s). Every package of the result is pinned except the project itself and those in
@@ -27,7 +27,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 LOCK = ROOT / "requirements-dev.txt"
 PROJECT = "rmi"
-EXTRAS = "test,learn,ray"
+EXTRAS = "test,learn,ray,lerobot"
 # torch's compiler for GPU kernels: 1 GB that only torch.compile on a GPU would load.
 LEFT_OUT = frozenset({"triton"})
 

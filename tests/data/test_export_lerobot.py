@@ -1,6 +1,7 @@
 """``rmi dataset export --format lerobot``: the LeRobot v2.1 layout read back with polars and
 json (shapes, names, frame counts, timestamps, splits, statistics), action channels from the
-dataset's metadata, and the refusals that leave nothing half-written."""
+dataset's metadata, and the refusals that leave nothing half-written. The v3.0 layout (the
+default) is tested in ``test_export_lerobot_v30.py``."""
 
 from __future__ import annotations
 
@@ -25,8 +26,9 @@ def read_jsonl(path: Path) -> list[dict[str, Any]]:
 
 
 def vectors(table: pl.DataFrame, name: str) -> np.ndarray:
-    s = table[name]
-    return np.asarray(s.list.to_array(len(s[0])).to_numpy(), dtype=np.float64)
+    """A feature's values as (frames, channels), a scalar column as one channel."""
+    values = np.asarray(table[name].to_numpy(), dtype=np.float64)
+    return values.reshape(table.height, -1)
 
 
 def stats_of(values: np.ndarray) -> dict[str, list[float]]:
@@ -44,17 +46,28 @@ def stats_of(values: np.ndarray) -> dict[str, list[float]]:
 def assert_stats(got: dict[str, dict[str, list[float]]], table: pl.DataFrame) -> None:
     assert sorted(got) == sorted(table.columns)
     for name in table.columns:
-        values = vectors(table, name) if isinstance(table[name].dtype, pl.List) else table[name]
-        want = stats_of(np.asarray(values, dtype=np.float64))
+        want = stats_of(vectors(table, name))
         for key in ("mean", "std", "min", "max"):
             np.testing.assert_allclose(got[name][key], want[key], rtol=1e-9, atol=1e-12)
         assert got[name]["count"] == want["count"]
 
 
+def check_columns(table: pl.DataFrame, feats: dict[str, dict[str, Any]]) -> None:
+    """Vectors are fixed-size float32 lists; a feature of shape [1] (the one action here
+    included) is a scalar column, as LeRobot stores it."""
+    want = {"float32": pl.Float32, "int64": pl.Int64, "bool": pl.Boolean}
+    for name, ft in feats.items():
+        if ft["shape"] == [1]:
+            assert table[name].dtype == want[ft["dtype"]], name
+        else:
+            assert table[name].dtype == pl.Array(pl.Float32, ft["shape"][0]), name
+
+
 @pytest.fixture(scope="module")
 def exported(synthetic_dataset_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("lerobot") / "export"
-    argv = ["dataset", "export", "--format", "lerobot", "--data", str(synthetic_dataset_dir)]
+    argv = ["dataset", "export", "--format", "lerobot", "--codebase-version", "v2.1"]
+    argv += ["--data", str(synthetic_dataset_dir)]
     assert main([*argv, "--out", str(out)]) == 0
     return out
 
@@ -82,14 +95,7 @@ def test_layout_and_info(exported: Path, synthetic_dataset_dir: Path) -> None:
         assert path in files
         table = pl.read_parquet(path)
         assert table.columns == list(feats)
-        for name, ft in feats.items():
-            # The state and the action are vectors whatever their length (one action here).
-            if ft["shape"] != [1] or name in ("action", "observation.state"):
-                assert table[name].dtype == pl.List(pl.Float32)
-                assert vectors(table, name).shape == (table.height, ft["shape"][0])
-            else:
-                want = {"float32": pl.Float32, "int64": pl.Int64, "bool": pl.Boolean}
-                assert table[name].dtype == want[ft["dtype"]], name
+        check_columns(table, feats)
 
 
 def test_episodes_are_the_runs_with_their_frames_and_split(
@@ -155,7 +161,7 @@ def test_action_channels_come_from_the_dataset(synthetic_dataset_dir: Path, tmp_
     assert stats["u_names"] == ["F_target"]
     stats["u_names"] = ["F_target", "v_cmd"]  # both recorded commands are in the frames
     (data / "stats.json").write_text(json.dumps(stats))
-    out = lerobot.export_lerobot(data, tmp_path / "export")
+    out = lerobot.export_lerobot(data, tmp_path / "export", "v2.1")
     feats = json.loads((out / "meta" / "info.json").read_text())["features"]
     assert feats["action"] == {"dtype": "float32", "shape": [2], "names": ["F_target", "v_cmd"]}
     table = pl.read_parquet(next((out / "data").rglob("*.parquet")))
@@ -202,10 +208,10 @@ def test_a_missing_action_channel_is_named(
 def test_a_failure_leaves_no_output_and_no_temporary(
     synthetic_dataset_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    def boom(table: pl.DataFrame) -> dict[str, Any]:
+    def boom(table: pl.DataFrame, quantiles: bool = False) -> dict[str, Any]:
         raise OSError("disk full")
 
-    monkeypatch.setattr(lerobot, "table_stats", boom)
+    monkeypatch.setattr(lerobot.stats, "table_stats", boom)
     with pytest.raises(OSError, match="disk full"):
         lerobot.export_lerobot(synthetic_dataset_dir, tmp_path / "export")
     assert list(tmp_path.iterdir()) == []
@@ -241,7 +247,7 @@ def test_the_temporary_of_a_killed_export_is_removed_by_the_next_one(
     script = (
         "import os, signal, sys\n"
         "import rmi_learn.data.export_lerobot as lerobot\n"
-        "lerobot.table_stats = lambda table: os.kill(os.getpid(), signal.SIGKILL)\n"
+        "lerobot.stats.table_stats = lambda *a, **k: os.kill(os.getpid(), signal.SIGKILL)\n"
         "lerobot.export_lerobot(sys.argv[1], sys.argv[2])\n"
     )
     killed = run_killed(script, str(synthetic_dataset_dir), str(parent / "first"))
@@ -266,5 +272,5 @@ def test_an_out_linking_to_an_empty_directory_is_written_through(
     assert main(argv) == 0
     assert link.is_symlink() and link.resolve() == real.resolve()
     info = json.loads((real / "meta" / "info.json").read_text())
-    assert info["total_episodes"] == len(list((real / "data").rglob("*.parquet")))
+    assert info["total_frames"] == pl.read_parquet(real / "data").height
     assert sorted(p.name for p in tmp_path.iterdir()) == ["link", "real"]

@@ -32,6 +32,9 @@ def _build_args(p: argparse.ArgumentParser, sub: bool) -> None:
 
 #: Formats ``rmi dataset export`` writes.
 EXPORT_FORMATS = ("lerobot",)
+#: LeRobot layouts (rmi_learn.data.export_lerobot.CODEBASE_VERSIONS), named here so that the
+#: command line builds without importing the exporter.
+CODEBASE_VERSIONS = ("v3.0", "v2.1")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -55,11 +58,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     i.add_argument("--json", action="store_true", help="print the full JSON summary")
     e = sub.add_parser(
         "export",
-        help="write a built dataset in another format (LeRobot v2.1)",
+        help="write a built dataset in another format (LeRobot v3.0 or v2.1)",
         formatter_class=parser.formatter_class,
     )
     e.add_argument(
         "--format", choices=EXPORT_FORMATS, default="lerobot", help="output format (lerobot)"
+    )
+    e.add_argument(
+        "--codebase-version",
+        choices=CODEBASE_VERSIONS,
+        default=CODEBASE_VERSIONS[0],
+        help="LeRobot layout: v3.0 (current LeRobot) or v2.1 (one file per episode)",
     )
     e.add_argument("--data", required=True, metavar="DIR", help="built dataset directory")
     # Default "absent", so that `rmi dataset --out O export --data D` keeps O.
@@ -106,10 +115,11 @@ def _export(args: argparse.Namespace) -> int:
 
     if not args.out:
         raise InputError("give --out DIR, a new or empty directory for the export")
-    out = export_lerobot(args.data, args.out)
+    out = export_lerobot(args.data, args.out, args.codebase_version)
     info = json.loads((out / "meta" / "info.json").read_text())
     print(
-        f"{args.format} dataset -> {out}: {info['total_episodes']} episodes, "
+        f"{args.format} {info['codebase_version']} dataset -> {out}: "
+        f"{info['total_episodes']} episodes, "
         f"{info['total_frames']} frames at {info['fps']} fps ("
         + ", ".join(f"{k} {v}" for k, v in info["splits"].items())
         + ")"
