@@ -423,3 +423,59 @@ def test_an_unknown_observation_mode_or_a_bad_sensor_setting_is_refused() -> Non
         SpongeSqueezeEnv(tiny_config(), observation_mode="camera")
     with pytest.raises(ValueError, match=r"sensors.wrist_N must be in \[0, 10.0\]"):
         SpongeSqueezeEnv(tiny_config(), observation_mode="sensors", sensors={"wrist_N": -1})
+
+
+@pytest.mark.parametrize("mode", ["privileged", "sensors"])
+def test_the_observation_space_bounds_what_physics_bounds_and_holds_every_observation(
+    cfg: dict[str, Any], mode: str
+) -> None:
+    env = SpongeSqueezeEnv(cfg, goal=0.5, observation_mode=mode)
+    space = env.observation_space
+    bounded = {n: (float(lo), float(hi)) for n, lo, hi in
+               zip(env.observation_names, space.low, space.high, strict=True)
+               if np.isfinite(lo) or np.isfinite(hi)}  # fmt: skip
+    flags = {"c": (0.0, 1.0), "r_stick": (0.0, 1.0), "r_slip": (0.0, 1.0), "r_mixed": (0.0, 1.0)}
+    if mode == "sensors":
+        assert bounded == flags  # noisy loads, areas and width may read below zero
+    else:
+        inf = float("inf")
+        assert bounded == {**flags, "r_none": (0.0, 1.0), **{n: (0.0, inf) for n in
+                           ("M_L", "S", "V_pore", "V_sponge", "w", "F_meas", "F_L", "F_R",
+                            "A_L", "A_R", "v_res")}}  # fmt: skip
+    obs, _ = env.reset(seed=0)
+    seen = [obs]
+    for f in (300.0, 0.0, 150.0):
+        seen.append(env.step(np.array([f], np.float32))[0])
+    assert all(space.contains(o) for o in seen)
+
+
+@pytest.mark.parametrize("autoreset", ["NEXT_STEP", "SAME_STEP"])
+def test_both_autoreset_modes_start_new_and_distinct_episodes(
+    cfg: dict[str, Any], autoreset: str
+) -> None:
+    """Whole episodes of two copies through ``make_vec`` in each autoreset mode: the copies'
+    episodes differ, and each copy's next episode differs from its first."""
+    mode = gym.vector.AutoresetMode[autoreset]
+    assert SpongeSqueezeEnv.metadata["autoreset_mode"] == gym.vector.AutoresetMode.NEXT_STEP
+    envs = gym.make_vec(
+        ENV_ID, num_envs=2, vectorization_mode="sync", config=cfg, goal=0.5,
+        max_episode_steps=3, vector_kwargs={"autoreset_mode": mode},
+    )  # fmt: skip
+    first_obs, _ = envs.reset(seed=0)
+    a = np.full((2, 1), 200.0, np.float32)
+    for _ in range(2):
+        envs.step(a)
+    obs, _, _, truncated, info = envs.step(a)  # the third step ends both episodes
+    assert truncated.all()
+    if mode == gym.vector.AutoresetMode.SAME_STEP:
+        # The new episodes' first observations come in the same step, the last ones in info.
+        new_obs = obs
+        assert info["final_obs"].shape == (2,) and info["_final_obs"].all()
+        assert not np.array_equal(info["final_obs"][0], new_obs[0])
+    else:
+        new_obs, reward, *_ = envs.step(a)  # the autoreset step
+        assert reward.tolist() == [0.0, 0.0]
+    envs.close()
+    assert not np.array_equal(new_obs[0], new_obs[1])
+    assert not np.array_equal(new_obs[0], first_obs[0])
+    assert not np.array_equal(new_obs[1], first_obs[1])

@@ -7,6 +7,7 @@ from rmi_learn.sensing.modes import (
     PRIVILEGED_NAMES,
     SENSOR_NAMES,
     check_observation_mode,
+    observation_bounds,
     observation_names,
 )
 from rmi_learn.sensing.sensor_model import SensorModel, SensorStream, observe_rows
@@ -21,6 +22,7 @@ __all__ = [
     "SensorStream",
     "check_observation_mode",
     "dry_mass",
+    "observation_bounds",
     "observation_names",
     "observe_rows",
     "weight_estimate",

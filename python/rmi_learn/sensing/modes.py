@@ -11,6 +11,8 @@ stick/slip flags, and the wrist load of a force/torque sensor between wrist and 
 
 from __future__ import annotations
 
+import numpy as np
+
 from rmi_learn.data.schema import OBS
 from rmi_learn.errors import InputError
 
@@ -48,8 +50,32 @@ def observation_names(mode: str) -> tuple[str, ...]:
     return PRIVILEGED_NAMES if check_observation_mode(mode) == "privileged" else SENSOR_NAMES
 
 
+#: Channels that cannot be negative: masses, volumes, the width, normal loads, contact
+#: areas, the slip speed's magnitude (and the flags).
+NON_NEGATIVE: frozenset[str] = frozenset(
+    {"M_L", "S", "V_pore", "V_sponge", "w", "F_meas", "F_L", "F_R", "A_L", "A_R", "v_res"}
+)
+#: Flags and class indicators, within [0, 1].
+UNIT_INTERVAL: frozenset[str] = frozenset({"c", "r_none", "r_stick", "r_slip", "r_mixed"})
+
+
+def observation_bounds(mode: str) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bound of each channel of ``mode`` (float32, -inf / inf where none):
+    the physical ones of :data:`NON_NEGATIVE` and :data:`UNIT_INTERVAL` in ``privileged``;
+    in ``sensors`` only the flags, which are read without error (a noisy load, area or
+    width reads below zero near zero)."""
+    names = observation_names(mode)
+    exact = mode == "privileged"
+    low = [0.0 if n in UNIT_INTERVAL or (exact and n in NON_NEGATIVE) else -np.inf for n in names]
+    high = [1.0 if n in UNIT_INTERVAL else np.inf for n in names]
+    return np.array(low, dtype=np.float32), np.array(high, dtype=np.float32)
+
+
 __all__ = [
+    "NON_NEGATIVE",
     "OBSERVATION_MODES",
+    "UNIT_INTERVAL",
+    "observation_bounds",
     "PRIVILEGED_NAMES",
     "SENSOR_NAMES",
     "check_observation_mode",

@@ -39,6 +39,16 @@ Observation (``observation_mode``, names in ``env.observation_names``):
   seeded by the sensor model's seed and the episode's trial seed. No M_L, S, V_pore or
   V_sponge: the reward still scores the true M_L, which ``info`` carries for evaluation only.
 
+The observation space is bounded where physics bounds a channel
+(:func:`rmi_learn.sensing.observation_bounds`): in ``privileged`` masses, volumes, the width,
+normal loads, contact areas and the slip speed are at least 0 and the flags within [0, 1];
+in ``sensors`` only the flags, since a noisy reading near zero can fall below it.
+
+Vector environments (``gym.make_vec``) may autoreset in either of gymnasium's modes
+(``metadata["autoreset_mode"]`` declares NEXT_STEP, their default; ``vector_kwargs=
+{"autoreset_mode": AutoresetMode.SAME_STEP}`` works as well): each copy's unseeded resets
+continue its own seed stream, so copies stay different episodes after an autoreset.
+
 ``info["y"]`` has the y_t values by name (None where undefined), plus ``phase``, ``time``
 (s), ``M_L`` and ``M_expelled`` (kg), ``F_target`` (N) and ``v_cmd`` (m/s) of the command
 the engine applied last, ``goal`` (kg), ``failure`` (str or None) and ``unstable`` (bool).
@@ -80,11 +90,18 @@ import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
+from gymnasium.vector import AutoresetMode
 
 import rmi_sph
 from rmi_learn.data.schema import CONTROL_DT, FORCE_LIMIT_N, OBS, PHASES, SEED_MAX, checked_seed
 from rmi_learn.errors import InputError
-from rmi_learn.sensing import SensorModel, SensorStream, check_observation_mode, observation_names
+from rmi_learn.sensing import (
+    SensorModel,
+    SensorStream,
+    check_observation_mode,
+    observation_bounds,
+    observation_names,
+)
 from rmi_learn.sim.goal import (
     REFERENCE_SQUEEZE_N,
     RELEASE_FRACTION,
@@ -159,7 +176,13 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         Noise and latency of the ``sensors`` mode (default: ``SensorModel()``).
     """
 
-    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 50}
+    # A vector env autoresets a copy in the step after its episode ends (NEXT_STEP, the
+    # vector envs' default) or in the same step (SAME_STEP); both keep copies apart.
+    metadata: dict[str, Any] = {
+        "render_modes": ["rgb_array"],
+        "render_fps": 50,
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+    }
 
     def __init__(
         self,
@@ -239,9 +262,8 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
             self.action_space = spaces.Box(
                 self.action_low.astype(np.float32), self.action_high.astype(np.float32)
             )
-        self.observation_space = spaces.Box(
-            -np.inf, np.inf, shape=(len(self.observation_names),), dtype=np.float32
-        )
+        low, high = observation_bounds(self.observation_mode)
+        self.observation_space = spaces.Box(low, high, dtype=np.float32)
 
         self.sim: rmi_sph.Trial | None = None
         self.goal = 0.0
