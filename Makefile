@@ -27,6 +27,7 @@ export PYO3_PYTHON := $(abspath $(VENV_PY))
 export PIP_DISABLE_PIP_VERSION_CHECK := 1
 
 .PHONY: setup lock test test-rust test-python demo pipeline pipeline-tiny validation report lint bench
+.PHONY: wheel wheel-check
 .PHONY: clean
 
 setup: $(BUILD_STAMP)
@@ -89,6 +90,33 @@ pipeline: setup
 # The whole chain on the tiny preset (CI runs this after `make test`).
 pipeline-tiny:
 	$(MAKE) --no-print-directory pipeline PRESET=tiny
+
+# An abi3 wheel for CPython 3.10+ that installs on glibc 2.28 and newer (RHEL/Rocky 8, Ubuntu
+# 20.04 and later; the plain `maturin build` wheel needs the build machine's glibc): maturin
+# links through zig (PyPI's ziglang) against glibc 2.28. Its tools live in an environment of
+# their own, outside the lock. `make wheel-check` installs the wheel into a fresh environment
+# without torch and checks that a trial there ends in the same bits as the source build.
+WHEEL_TOOLS := $(VENV)-wheel-tools
+ZIGLANG := ziglang==0.17.0
+MATURIN := $(shell grep '^maturin==' $(LOCK))
+DIST ?= dist
+
+$(WHEEL_TOOLS)/bin/maturin:
+	$(PYTHON) -m venv $(WHEEL_TOOLS)
+	$(WHEEL_TOOLS)/bin/pip install -q $(ZIGLANG) $(MATURIN)
+
+wheel: $(WHEEL_TOOLS)/bin/maturin
+	rm -f $(DIST)/rmi-*.whl
+	PATH="$(abspath $(WHEEL_TOOLS))/bin:$$PATH" maturin build --release --zig \
+		--compatibility manylinux_2_28 --interpreter $(PYTHON) --out $(DIST)
+
+wheel-check: wheel setup
+	rm -rf $(DIST)/check-venv
+	$(PYTHON) -m venv $(DIST)/check-venv
+	$(DIST)/check-venv/bin/pip install -q $(DIST)/rmi-*-manylinux_2_28_x86_64.whl
+	$(DIST)/check-venv/bin/python tools/wheel_check.py --installed > $(DIST)/wheel.txt
+	$(VENV_PY) tools/wheel_check.py > $(DIST)/source.txt
+	diff $(DIST)/source.txt $(DIST)/wheel.txt && cat $(DIST)/wheel.txt
 
 # Physical validation against analytic answers (docs/physics.md §5), recorded for the report.
 validation:

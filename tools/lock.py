@@ -1,7 +1,7 @@
 """Re-resolve requirements-dev.txt, the exact versions `make setup` installs.
 
-pip's resolver works out the project's `test`, `learn`, `ray` and `lerobot` extras, the build backend
-(maturin, with pyproject.toml's range) and pip itself against PyPI, for this interpreter and
+pip's resolver works out the project's `test`, `learn`, `ray` and `lerobot` extras, the build
+backend (maturin, with pyproject.toml's range) and pip itself against PyPI, for this interpreter and
 platform. It reads package metadata only: no wheel is downloaded, nothing is installed (about
 20 s). Every package of the result is pinned except the project itself and those in
 LEFT_OUT; the file's leading comment block is kept. Run it with the interpreter the pins are
