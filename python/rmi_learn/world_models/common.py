@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import inspect
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -302,6 +302,29 @@ def wm_loss(
     return loss, logs
 
 
+def _masked_rms(
+    ws: Any,
+    changes: Callable[[dict[str, torch.Tensor]], tuple[torch.Tensor, torch.Tensor]],
+    batch_size: int,
+    floor: float,
+) -> torch.Tensor:
+    """Per-channel RMS, (18,), of the changes ``changes(batch)`` returns with their weights
+    (both float64, channels last) over the windows of ``ws``, floored at ``floor``."""
+    total = torch.zeros(N_Z, dtype=torch.float64)
+    count = torch.zeros(N_Z, dtype=torch.float64)
+    for s in range(0, len(ws), batch_size):
+        d, w = changes(ws.batch(np.arange(s, min(s + batch_size, len(ws)))))
+        total += (w * d * d).sum(dim=(0, 1))
+        count += w.sum(dim=(0, 1))
+    rms = (total / count.clamp_min(1.0)).sqrt()
+    return rms.clamp_min(floor).to(torch.float32)
+
+
+def _latest_mask(b: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Validity of each window's latest continuous state, (N, 1, 18)."""
+    return b["hist_mask"][:, -1, list(CONTINUOUS_INDEX)].unsqueeze(1)
+
+
 def change_scale(ws: Any, batch_size: int = 1024, floor: float = 1e-3) -> torch.Tensor:
     """Root-mean-square forecast change of each continuous channel, (18,), standardised units.
 
@@ -311,18 +334,12 @@ def change_scale(ws: Any, batch_size: int = 1024, floor: float = 1e-3) -> torch.
     study resolution retained water changes by about 1/80 of its level's spread in 0.64 s,
     the grip force by half of it. This is the scale that ``--loss-scale change`` divides by.
     """
-    total = torch.zeros(N_Z, dtype=torch.float64)
-    count = torch.zeros(N_Z, dtype=torch.float64)
-    for s in range(0, len(ws), batch_size):
-        b = ws.batch(np.arange(s, min(s + batch_size, len(ws))))
-        z0 = last_z(b["hist"]).unsqueeze(1)
-        m0 = b["hist_mask"][:, -1, list(CONTINUOUS_INDEX)].unsqueeze(1)
-        m = (b["target_mask"] * m0).to(torch.float64)
-        d = (b["target"] - z0).to(torch.float64)
-        total += (m * d * d).sum(dim=(0, 1))
-        count += m.sum(dim=(0, 1))
-    rms = (total / count.clamp_min(1.0)).sqrt()
-    return rms.clamp_min(floor).to(torch.float32)
+
+    def changes(b: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        d = (b["target"] - last_z(b["hist"]).unsqueeze(1)).to(torch.float64)
+        return d, (b["target_mask"] * _latest_mask(b)).to(torch.float64)
+
+    return _masked_rms(ws, changes, batch_size, floor)
 
 
 def step_scale(ws: Any, batch_size: int = 1024, floor: float = 1e-4) -> torch.Tensor:
@@ -331,19 +348,13 @@ def step_scale(ws: Any, batch_size: int = 1024, floor: float = 1e-4) -> torch.Te
     ``z_{t+k} -> z_{t+k+1}`` of every forecast where both ends are valid, floored at
     ``floor``. The unit of the learned models' predicted change
     (:meth:`WorldModel.set_delta_scale`)."""
-    total = torch.zeros(N_Z, dtype=torch.float64)
-    count = torch.zeros(N_Z, dtype=torch.float64)
-    for s in range(0, len(ws), batch_size):
-        b = ws.batch(np.arange(s, min(s + batch_size, len(ws))))
+
+    def changes(b: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         z = torch.cat([last_z(b["hist"]).unsqueeze(1), b["target"]], dim=1).to(torch.float64)
-        m0 = b["hist_mask"][:, -1, list(CONTINUOUS_INDEX)].unsqueeze(1)
-        m = torch.cat([m0, b["target_mask"]], dim=1).to(torch.float64)
-        d = z[:, 1:] - z[:, :-1]
-        both = m[:, 1:] * m[:, :-1]
-        total += (both * d * d).sum(dim=(0, 1))
-        count += both.sum(dim=(0, 1))
-    rms = (total / count.clamp_min(1.0)).sqrt()
-    return rms.clamp_min(floor).to(torch.float32)
+        m = torch.cat([_latest_mask(b), b["target_mask"]], dim=1).to(torch.float64)
+        return z[:, 1:] - z[:, :-1], m[:, 1:] * m[:, :-1]
+
+    return _masked_rms(ws, changes, batch_size, floor)
 
 
 def shuffled_pairing(run: np.ndarray, seed: int = 0) -> np.ndarray:
