@@ -8,12 +8,13 @@ and learning code. Their numbers mean nothing physically. ``bench_script`` loads
 
 from __future__ import annotations
 
-import importlib.util
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
+
+from script_module import load_script
 
 BENCHES = Path(__file__).resolve().parents[1] / "benches"
 
@@ -24,11 +25,7 @@ def bench_script() -> Callable[[str], Any]:
     (``benches/`` is a folder of scripts, not a package)."""
 
     def load(name: str) -> Any:
-        spec = importlib.util.spec_from_file_location(name, BENCHES / f"{name}.py")
-        assert spec is not None and spec.loader is not None
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-        return mod
+        return load_script(BENCHES / f"{name}.py")
 
     return load
 

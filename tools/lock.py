@@ -27,7 +27,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 LOCK = ROOT / "requirements-dev.txt"
 PROJECT = "rmi"
-EXTRAS = "test,learn,ray,lerobot"
+EXTRAS = "test,learn,ray,lerobot,rl,video"
 # torch's compiler for GPU kernels: 1 GB that only torch.compile on a GPU would load.
 LEFT_OUT = frozenset({"triton"})
 

@@ -6,7 +6,6 @@ A tiny debug policy on the synthetic toy data (numbers mean nothing physically).
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import re
 import shutil
@@ -31,6 +30,7 @@ from rmi_learn.policies.policy import STORED, WORLD_MODEL_DIR, attach_world_mode
 from rmi_learn.trainer import save_weights
 from rmi_learn.world_models import build
 from rmi_learn.world_models import load as load_world_model
+from script_module import load_script
 from tiny_trial import tiny_config
 
 torch.set_num_threads(1)
@@ -270,11 +270,7 @@ def test_a_run_whose_mean_is_not_finite_is_refused_not_an_all_nan_chunk(
 
 
 def _example() -> Any:
-    spec = importlib.util.spec_from_file_location("policy_in_env", EXAMPLE)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script(EXAMPLE, "policy_in_env")
 
 
 def test_example_drives_the_environment(

@@ -3,24 +3,16 @@
 from __future__ import annotations
 
 import importlib.metadata as md
-import importlib.util
 from pathlib import Path
-from types import ModuleType
 
 from packaging.requirements import Requirement
+
+from script_module import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def load_tool() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("lock_tool", ROOT / "tools" / "lock.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-lock = load_tool()
+lock = load_script(ROOT / "tools" / "lock.py", "lock_tool")
 
 
 def pins() -> dict[str, str]:

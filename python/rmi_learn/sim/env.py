@@ -9,9 +9,9 @@ the lift gate and the gripper guards keep running underneath.
 
 Actions (``action_mode``):
 
-- ``"force"`` (default): ``[F_target]`` in [0, ``FORCE_LIMIT_N``] N. The engine's force
-  loop (Eq. 5b) closes or opens the pads toward the target; the closing speed it chose is
-  reported as ``info["v_cmd"]``.
+- ``"force"`` (default): ``[F_target]`` in [0, ``FORCE_LIMIT_N``] N (or ``force_range``).
+  The engine's force loop (Eq. 5b) closes or opens the pads toward the target; the closing
+  speed it chose is reported as ``info["v_cmd"]``.
 - ``"force_velocity"``: ``[F_target (N), v_cmd (m/s)]``, v_cmd in [-v_open, v_close] of the
   config's controller (positive closes), executed as given (within the gripper's guards).
 
@@ -24,7 +24,9 @@ None) ``TypeError``.
 Seeds: ``reset(seed=s)`` gives the episode of trial seed ``s``, the same every time; an
 unseeded reset draws the trial's seed from the environment's ``np_random``, so episodes
 differ from one reset to the next (see ``SpongeSqueezeEnv.reset``). Both are in
-[0, ``SEED_MAX``] (2^63 - 1), the engine's range of seeds.
+[0, ``SEED_MAX``] (2^63 - 1), the engine's range of seeds; with ``start_seeds=n`` unseeded
+resets draw from the first ``n`` seeds only, whose hand-over states are cached, so that a
+reset restores a state instead of running the scripted approach again.
 
 Observation (``observation_mode``, names in ``env.observation_names``):
 
@@ -38,6 +40,9 @@ Observation (``observation_mode``, names in ``env.observation_names``):
   :class:`rmi_learn.sensing.SensorModel` or its fields; default its data-sheet defaults),
   seeded by the sensor model's seed and the episode's trial seed. No M_L, S, V_pore or
   V_sponge: the reward still scores the true M_L, which ``info`` carries for evaluation only.
+
+With ``observe_goal=True`` either mode appends the episode's goal (kg) as a last channel
+``goal``, which a goal-conditioned agent needs when goals differ between episodes.
 
 The observation space is bounded where physics bounds a channel
 (:func:`rmi_learn.sensing.observation_bounds`): in ``privileged`` masses, volumes, the width,
@@ -53,11 +58,14 @@ continue its own seed stream, so copies stay different episodes after an autores
 (s), ``M_L`` and ``M_expelled`` (kg), ``F_target`` (N) and ``v_cmd`` (m/s) of the command
 the engine applied last, ``goal`` (kg), ``failure`` (str or None) and ``unstable`` (bool).
 
-Reward: ``-|M_L - goal|`` in kg, the distance of the retained water to the goal mass.
+Reward: ``-|M_L - goal|`` in kg, the distance of the retained water to the goal mass, less
+``failure_cost`` (kg, default 0) in the step that ends the episode by a failure or an
+instability, so that an agent cannot shorten its penalties by dropping the sponge.
 The goal is, first match wins: ``options["goal"]`` (kg), ``options["goal_fraction"]``, the
 constructor's ``goal``, its ``goal_fraction`` (times the water retained at hand-over), else
 the reachable default of :mod:`rmi_learn.sim.goal`: the water retained at hand-over less
-``release_fraction`` (0.5) of the water a constant 300 N squeeze releases from the hand-over
+``release_fraction`` (0.5, or a fraction drawn per episode from a ``(low, high)`` range) of
+the water a constant 300 N squeeze releases from the hand-over
 of the config's seed to the end of the trial (measured once per environment, at the first
 reset that needs it).
 
@@ -71,10 +79,12 @@ Rendering: ``render_mode="rgb_array"`` makes ``render()`` return a side view (x-
 particles, an (H, W, 3) uint8 image (:mod:`rmi_learn.sim.render`); with ``render_mode=None``
 it returns None and nothing is drawn.
 
-Registered as ``rmi/SpongeSqueeze-v0`` on import of this module::
+Registered on import of this module, as the variants of :mod:`rmi_learn.sim.variants`:
+``rmi/SpongeSqueeze-v0`` (the default sponge, for evaluation) and
+``rmi/SpongeSqueezeFast-v0`` (a coarse sponge with goals drawn per episode, for learning)::
 
     import gymnasium as gym
-    import rmi_learn.sim.env  # registers the id
+    import rmi_learn.sim.env  # registers the ids
     env = gym.make("rmi/SpongeSqueeze-v0", config=rmi_sph.trial_config(8, 0.6, 20, 40, 0.01))
 """
 
@@ -113,10 +123,13 @@ from rmi_learn.sim.goal import (
     unit_fraction,
 )
 from rmi_learn.sim.render import View, side_view, view_of
+from rmi_learn.sim.variants import (  # noqa: F401 (re-exported: the ids live with the env)
+    DEFAULT_MAX_EPISODE_STEPS,
+    ENV_ID,
+    FAST_ENV_ID,
+    register_variants,
+)
 
-ENV_ID = "rmi/SpongeSqueeze-v0"
-#: Control steps before ``gym.make``'s ``TimeLimit`` truncates (10 s at 20 ms).
-DEFAULT_MAX_EPISODE_STEPS = 500
 #: Action modes and the names of their channels.
 ACTION_MODES: dict[str, tuple[str, ...]] = {
     "force": ("F_target",),
@@ -153,9 +166,10 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         Goal retained water mass (kg).
     goal_fraction : float, optional
         Goal as a fraction of the water retained at hand-over, when no goal is given.
-    release_fraction : float, default ``goal.RELEASE_FRACTION`` (0.5)
+    release_fraction : float or (float, float), default ``goal.RELEASE_FRACTION`` (0.5)
         With neither goal nor goal_fraction: the part of the reference squeeze's release
-        (``goal.REFERENCE_SQUEEZE_N`` = 300 N) the default goal asks for, in [0, 1].
+        (``goal.REFERENCE_SQUEEZE_N`` = 300 N) the default goal asks for, in [0, 1]; a pair
+        ``(low, high)`` draws it uniformly per episode from the environment's ``np_random``.
     handover : str, default "lift"
         Phase from which the agent drives the gripper; earlier phases run scripted.
     control_dt : float, default ``schema.CONTROL_DT`` (0.02 s)
@@ -174,6 +188,17 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         The simulator's y_t, or what the gripper's sensors report (module docstring).
     sensors : SensorModel or mapping of its fields, optional
         Noise and latency of the ``sensors`` mode (default: ``SensorModel()``).
+    observe_goal : bool, default False
+        Append the episode's goal (kg) to the observation as channel ``goal``.
+    force_range : (float, float), optional
+        Bounds of F_target (N), within [0, ``FORCE_LIMIT_N``]; default that whole range. The
+        goal-reaching benchmark's controllers act within [0.8 F_hold, 400 N].
+    failure_cost : float, default 0
+        Subtracted from the reward (kg) of the step in which the trial fails or becomes
+        unstable; at least 0.
+    start_seeds : int, optional
+        Unseeded resets draw the trial seed from [0, ``start_seeds``) and cache each seed's
+        hand-over state (with ``cache_handover``); default: from [0, ``SEED_MAX``], uncached.
     """
 
     # A vector env autoresets a copy in the step after its episode ends (NEXT_STEP, the
@@ -201,6 +226,10 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         render_shape: tuple[int, int] = RENDER_SHAPE,
         observation_mode: str = "privileged",
         sensors: SensorModel | Mapping[str, Any] | None = None,
+        observe_goal: bool = False,
+        force_range: tuple[float, float] | None = None,
+        failure_cost: float = 0.0,
+        start_seeds: int | None = None,
     ) -> None:
         super().__init__()
         try:
@@ -210,8 +239,15 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
             )
         except InputError as exc:  # one line naming the field, a ValueError like the others
             raise ValueError(str(exc)) from None
+        self.observe_goal = bool(observe_goal)
         #: The observation's channel names, in order.
-        self.observation_names: tuple[str, ...] = observation_names(self.observation_mode)
+        self.observation_names: tuple[str, ...] = observation_names(self.observation_mode) + (
+            ("goal",) if self.observe_goal else ()
+        )
+        self.start_seeds = None if start_seeds is None else seed_count(start_seeds)
+        self.failure_cost = real_number("failure_cost", failure_cost, "a cost >= 0 kg")
+        if not (math.isfinite(self.failure_cost) and self.failure_cost >= 0.0):
+            raise ValueError(f"failure_cost must be a cost >= 0 kg, got {failure_cost!r}")
         self._stream: SensorStream | None = None
         # Checked once here (trial_config returns a checked, complete config); every episode
         # builds its Trial from this dict.
@@ -235,7 +271,7 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         self.goal_fraction = (
             None if goal_fraction is None else unit_fraction("goal_fraction", goal_fraction)
         )
-        self.release_fraction = unit_fraction("release_fraction", release_fraction)
+        self.release_fraction = release_range(release_fraction)
         self.handover = handover
         self.cache_handover = cache_handover
         dt = float(self.config["dt"])
@@ -250,7 +286,10 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         self.action_mode = action_mode
         self.action_names = ACTION_MODES[action_mode]
         ctrl = self.config["controller"]
-        bounds = {"F_target": (0.0, FORCE_LIMIT_N), "v_cmd": (-ctrl["v_open"], ctrl["v_close"])}
+        bounds = {
+            "F_target": checked_force_range(force_range),
+            "v_cmd": (-ctrl["v_open"], ctrl["v_close"]),
+        }
         #: The physical action range, per channel (N or m/s).
         self.action_low = np.array([bounds[n][0] for n in self.action_names], dtype=np.float64)
         self.action_high = np.array([bounds[n][1] for n in self.action_names], dtype=np.float64)
@@ -263,6 +302,8 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
                 self.action_low.astype(np.float32), self.action_high.astype(np.float32)
             )
         low, high = observation_bounds(self.observation_mode)
+        if self.observe_goal:
+            low, high = np.append(low, np.float32(0.0)), np.append(high, np.float32(np.inf))
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
 
         self.sim: rmi_sph.Trial | None = None
@@ -290,6 +331,18 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
             self._cache[seed] = sim.get_state()
         return sim
 
+    def prepare_start_states(self) -> int:
+        """Run the scripted approach of every seed of the ``start_seeds`` pool not cached yet
+        and cache its hand-over state, so that every later unseeded reset restores one (as a
+        vector env's ``call("prepare_start_states")`` does in each copy before a timed run).
+        Returns the number of cached states; 0 without a pool or ``cache_handover``."""
+        if self.start_seeds is None or not self.cache_handover:
+            return 0
+        for seed in range(self.start_seeds):
+            if seed not in self._cache:
+                self._scripted_approach(seed, keep=True)
+        return len(self._cache)
+
     def _reference_release(self) -> float:
         if self.reference_release_kg is None:
             sim = self._scripted_approach(int(self.config["seed"]), keep=True)
@@ -302,11 +355,8 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         assert self.sim is not None
         raw = np.array([record[n] for n in OBS], dtype=np.float64)
         mask = np.isfinite(raw)
-        if self._stream is not None:
-            seen = self._stream.observe(record)
-            obs, obs_mask = seen.astype(np.float32), np.ones(seen.size, dtype=bool)
-        else:
-            obs, obs_mask = np.where(mask, raw, 0.0).astype(np.float32), mask
+        seen = None if self._stream is None else self._stream.observe(record)
+        obs, obs_mask = observation_vector(record, seen, self.goal if self.observe_goal else None)
         info: dict[str, Any] = {
             "y": {n: (float(v) if ok else None) for n, v, ok in zip(OBS, raw, mask, strict=True)},
             "mask": obs_mask,
@@ -399,7 +449,9 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         elif frac is not None:
             self.goal = frac * water
         else:
-            self.goal = reachable_goal(water, release, self.release_fraction)
+            low, high = self.release_fraction
+            fraction = low if high == low else float(self.np_random.uniform(low, high))
+            self.goal = reachable_goal(water, release, fraction)
         self._view = view_of(self.sim, self.render_shape) if self.render_mode else None
         return self._observe(record)
 
@@ -447,8 +499,9 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
             sim = rmi_sph.Trial.load(options["state_path"], num_threads=self.num_threads)
             return self._of_this_config('options["state_path"]', sim)
         if seed is None:
-            seed = int(self.np_random.integers(SEED_MAX + 1))
-            return self._scripted_approach(seed, keep=False)
+            pooled = self.start_seeds is not None
+            seed = int(self.np_random.integers(self.start_seeds if pooled else SEED_MAX + 1))
+            return self._scripted_approach(seed, keep=pooled)
         return self._scripted_approach(seed, keep=True)
 
     def _of_this_config(self, name: str, sim: rmi_sph.Trial) -> rmi_sph.Trial:
@@ -479,6 +532,8 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         record = self.sim.take_record()
         obs, info = self._observe(record, unstable)
         reward = -abs(info["M_L"] - self.goal)
+        if unstable or self.sim.failure is not None:
+            reward -= self.failure_cost
         terminated = bool(self.sim.finished or unstable)
         return obs, float(reward), terminated, False, info
 
@@ -498,6 +553,68 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
 
     def close(self) -> None:
         self.sim = None
+
+
+def observation_vector(
+    record: Mapping[str, Any], sensed: npt.NDArray[np.float64] | None, goal: float | None = None
+) -> tuple[ObsType, npt.NDArray[np.bool_]]:
+    """The observation an environment shows for an engine ``record`` and its mask: the
+    sensors' reading ``sensed`` (``SENSOR_NAMES`` order) in the ``sensors`` mode, else the
+    record's y_t with 0 where undefined; ``goal`` (kg) appended when given (``observe_goal``).
+    A controller run outside the environment (the goal-reaching benchmark's episodes) builds
+    an agent's input with it."""
+    if sensed is not None:
+        obs, mask = sensed.astype(np.float32), np.ones(sensed.size, dtype=bool)
+    else:
+        raw = np.array([record[n] for n in OBS], dtype=np.float64)
+        mask = np.isfinite(raw)
+        obs = np.where(mask, raw, 0.0).astype(np.float32)
+    if goal is not None:
+        obs, mask = np.append(obs, np.float32(goal)), np.append(mask, True)
+    return obs, mask
+
+
+def release_range(value: Any) -> tuple[float, float]:
+    """``release_fraction`` as its ``(low, high)`` range in [0, 1] (a single fraction is a
+    range of one value); a ``ValueError`` or ``TypeError`` naming the field otherwise."""
+    if isinstance(value, (tuple, list)):
+        if len(value) != 2:
+            raise ValueError(
+                f"release_fraction must be a fraction or a (low, high) pair, got {shown(value)}"
+            )
+        low = unit_fraction("release_fraction[0]", value[0])
+        high = unit_fraction("release_fraction[1]", value[1])
+        if low > high:
+            raise ValueError(f"release_fraction must have low <= high, got {shown(value)}")
+        return low, high
+    f = unit_fraction("release_fraction", value)
+    return f, f
+
+
+def checked_force_range(value: Any) -> tuple[float, float]:
+    """``force_range`` as ``(low, high)`` N within [0, ``FORCE_LIMIT_N``], low < high (None:
+    that whole range); a ``ValueError`` or ``TypeError`` naming the field otherwise."""
+    if value is None:
+        return 0.0, FORCE_LIMIT_N
+    accepted = f"a (low, high) pair of forces in [0, {FORCE_LIMIT_N:g}] N with low < high"
+    if not isinstance(value, (tuple, list)) or len(value) != 2:
+        raise ValueError(f"force_range must be {accepted}, got {shown(value)}")
+    low = real_number("force_range[0]", value[0], accepted)
+    high = real_number("force_range[1]", value[1], accepted)
+    if not 0.0 <= low < high <= FORCE_LIMIT_N:
+        raise ValueError(f"force_range must be {accepted}, got {shown(value)}")
+    return low, high
+
+
+def seed_count(value: Any) -> int:
+    """``start_seeds`` as a count of seeds in [1, ``SEED_MAX``]; a ``ValueError`` (a
+    ``TypeError`` for a value that is not an integer) naming the field otherwise."""
+    accepted = f"an integer in [1, {SEED_MAX}]"
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"start_seeds must be {accepted}, got {shown(value)}")
+    if not 1 <= int(value) <= SEED_MAX:
+        raise ValueError(f"start_seeds must be {accepted}, got {value!r}")
+    return int(value)
 
 
 def substeps_per_control(control_dt: Any, dt: float) -> int:
@@ -538,9 +655,4 @@ def config_difference(mine: Any, theirs: Any, path: str = "") -> tuple[str, Any,
     return None if mine == theirs else (path or "config", mine, theirs)
 
 
-if ENV_ID not in gym.registry:
-    gym.register(
-        id=ENV_ID,
-        entry_point="rmi_learn.sim.env:SpongeSqueezeEnv",
-        max_episode_steps=DEFAULT_MAX_EPISODE_STEPS,
-    )
+register_variants()

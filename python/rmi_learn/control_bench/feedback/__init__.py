@@ -12,7 +12,8 @@ Modules: :mod:`.protocol` (the file and its checks), :mod:`.held_out` (folds and
 states), :mod:`.episode` (one executed closed loop), :mod:`.laws` (PI, hold, fixed
 setpoints), :mod:`.estimators` and :mod:`.fitting` (M_L from the sensors), :mod:`.worker`
 (the executions of one run), :mod:`.clusters` (the summary), :mod:`.report` (Markdown) and
-:mod:`.driver` (:func:`run_protocol_bench`).
+:mod:`.driver` (:func:`run_protocol_bench`); :mod:`.env_states` runs the reach task from a
+Gymnasium environment's hand-over states, for agents that act through its observation.
 """
 
 from typing import Any
