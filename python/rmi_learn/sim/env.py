@@ -353,10 +353,10 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         self, record: Mapping[str, Any], unstable: bool = False
     ) -> tuple[ObsType, dict[str, Any]]:
         assert self.sim is not None
-        raw = np.array([record[n] for n in OBS], dtype=np.float64)
+        raw = y_values(record)
         mask = np.isfinite(raw)
         seen = None if self._stream is None else self._stream.observe(record)
-        obs, obs_mask = observation_vector(record, seen, self.goal if self.observe_goal else None)
+        obs, obs_mask = observation_vector(raw, seen, self.goal if self.observe_goal else None)
         info: dict[str, Any] = {
             "y": {n: (float(v) if ok else None) for n, v, ok in zip(OBS, raw, mask, strict=True)},
             "mask": obs_mask,
@@ -555,20 +555,24 @@ class SpongeSqueezeEnv(gym.Env[ObsType, ActType]):
         self.sim = None
 
 
+def y_values(record: Mapping[str, Any]) -> npt.NDArray[np.float64]:
+    """An engine ``record``'s y_t in ``OBS`` order, NaN where a channel is undefined."""
+    return np.array([record[n] for n in OBS], dtype=np.float64)
+
+
 def observation_vector(
-    record: Mapping[str, Any], sensed: npt.NDArray[np.float64] | None, goal: float | None = None
+    y: npt.NDArray[np.float64], sensed: npt.NDArray[np.float64] | None, goal: float | None = None
 ) -> tuple[ObsType, npt.NDArray[np.bool_]]:
-    """The observation an environment shows for an engine ``record`` and its mask: the
-    sensors' reading ``sensed`` (``SENSOR_NAMES`` order) in the ``sensors`` mode, else the
-    record's y_t with 0 where undefined; ``goal`` (kg) appended when given (``observe_goal``).
-    A controller run outside the environment (the goal-reaching benchmark's episodes) builds
-    an agent's input with it."""
+    """The observation an environment shows and its mask: the sensors' reading ``sensed``
+    (``SENSOR_NAMES`` order) in the ``sensors`` mode, else y_t ``y`` (:func:`y_values`) with
+    0 where undefined; ``goal`` (kg) appended when given (``observe_goal``). A controller run
+    outside the environment (the goal-reaching benchmark's episodes) builds an agent's input
+    with it."""
     if sensed is not None:
         obs, mask = sensed.astype(np.float32), np.ones(sensed.size, dtype=bool)
     else:
-        raw = np.array([record[n] for n in OBS], dtype=np.float64)
-        mask = np.isfinite(raw)
-        obs = np.where(mask, raw, 0.0).astype(np.float32)
+        mask = np.isfinite(y)
+        obs = np.where(mask, y, 0.0).astype(np.float32)
     if goal is not None:
         obs, mask = np.append(obs, np.float32(goal)), np.append(mask, True)
     return obs, mask

@@ -32,7 +32,7 @@ from rmi_learn.control_bench.feedback.estimators import (
 )
 from rmi_learn.control_bench.feedback.laws import PI, Fixed, Hold
 from rmi_learn.sensing import dry_mass, weight_estimate
-from rmi_learn.sim.env import SpongeSqueezeEnv, observation_vector
+from rmi_learn.sim.env import SpongeSqueezeEnv, observation_vector, y_values
 
 #: A policy: the environment's observation (float32) -> an action of its action space.
 Policy = Callable[[np.ndarray], np.ndarray]
@@ -54,7 +54,7 @@ class AgentController:
 
     def act(self, tick: Tick) -> float:
         goal = self.goal_kg if self.env.observe_goal else None
-        obs, _ = observation_vector(tick.record, tick.observed, goal)
+        obs, _ = observation_vector(y_values(tick.record), tick.observed, goal)
         return float(self.env.physical_action(self.policy(obs))[0])
 
 
