@@ -203,6 +203,18 @@ def test_executes_chunks_and_reproduces_the_original(sweep_dir: Path, tmp_path: 
     md = (out / "table_closed_loop.md").read_text()
     assert "| Original controller action (replayed at 20 ms) |" in md
     assert "| Flow matching + W_T |" in md and "Diffusion policy, first sample" in md
+    # A ranking that names another scorer names the selected rows after it; the resumed call
+    # executes nothing again.
+    (tmp_path / "rank" / "table3_ranking.json").write_text(
+        json.dumps({"scorer_name": "AC-GRU-WM", "rows": []})
+    )
+    s2 = run_closed_loop(
+        sweep_dir, chunks, out, max_windows=0, threads=1, command="force", progress=False
+    )
+    assert s2["sizes"] == s["sizes"] and s2["windows_executed_now"] == 0
+    assert s2["scorer_name"] == "AC-GRU-WM"
+    md = (out / "table_closed_loop.md").read_text()
+    assert "| Flow matching + AC-GRU-WM |" in md and "W_T" not in md
 
 
 def test_repeatable_and_resumes_without_redoing_windows(sweep_dir: Path, tmp_path: Path) -> None:

@@ -194,6 +194,7 @@ def test_train_and_rank_end_to_end(
                "--out", str(out), "--max-windows", "6", "--threads", "1"])  # fmt: skip
     assert rc == 0
     t3 = json.loads((out / "table3_ranking.json").read_text())
+    assert t3["scorer_name"] == "W_T"
     assert [r["method"] for r in t3["rows"]] == [
         "Original controller action",
         "Diffusion policy, first sample",
@@ -242,3 +243,19 @@ def test_train_and_rank_end_to_end(
         assert main([*base, "--wm", str(wm), "--flow", str(flow)]) == 2
         assert says in capsys.readouterr().err
         assert not (tmp_path / "bad").exists()
+    # Another scorer whose horizon fits names the selected rows and the title after itself.
+    arx32 = tmp_path / "arx-32"
+    rc = main(["train-wm", "--model", "arx", "--model-arg", "horizon=32", "--data",
+               str(synthetic_dataset_dir), "--out", str(arx32), *wm_args])  # fmt: skip
+    assert rc == 0
+    by_arx = tmp_path / "tables-arx"
+    assert main([*base[:-2], "--out", str(by_arx), "--wm", str(arx32),
+                 "--flow", str(tmp_path / "flow"), "--max-windows", "2"]) == 0  # fmt: skip
+    t3 = json.loads((by_arx / "table3_ranking.json").read_text())
+    assert t3["scorer_name"] == "Linear-ARX"
+    assert [r["method"] for r in t3["rows"]][1:] == [
+        "Flow matching, first sample",
+        "Flow matching + Linear-ARX",
+    ]
+    assert "Table III. Linear-ARX-predicted" in (by_arx / "table3_ranking.md").read_text()
+    assert "W_T" not in (by_arx / "tableS1_cost.md").read_text()

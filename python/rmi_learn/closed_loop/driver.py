@@ -249,6 +249,15 @@ def _payload(
 ) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
     """The summary, the table's settings and the JSON payload of ``table_closed_loop``."""
     summary = summarise(rows, inputs.windows)
+    table3 = cdir / "table3_ranking.json"
+    ranked: dict[str, Any] = {}
+    if table3.exists():
+        try:
+            ranked = json.loads(table3.read_text())
+        except ValueError:
+            ranked = {}
+    # Rankings written before the scorer was named in them were all W_T's.
+    scorer = str(ranked.get("scorer_name", "W_T"))
     info = {
         "sweep": str(sweep),
         "chunks": str(cdir),
@@ -258,7 +267,8 @@ def _payload(
         "objectives": sorted(inputs.chunks),
         "unit": "g",
         "goal": "collected M_L at t + H (kg in data, g in the table)",
-        "note": "real error executed in the simulator; *_pred_g are W_T's own predictions",
+        "scorer_name": scorer,
+        "note": f"real error executed in the simulator; *_pred_g are {scorer}'s own predictions",
     }
     payload = {
         **info,
@@ -269,14 +279,10 @@ def _payload(
         "wall_s_per_window": (wall / n_exec) if n_exec else None,
         "version": __version__,
     }
-    table3 = cdir / "table3_ranking.json"
-    if table3.exists():
-        # W_T's predictions over every ranked window (Table III of `rmi rank`), for comparison;
-        # the per-window predictions of the executed windows are in `sizes`.
-        try:
-            payload["rank_table3_predicted"] = json.loads(table3.read_text())["rows"]
-        except (ValueError, KeyError):
-            pass
+    if "rows" in ranked:
+        # The scorer's predictions over every ranked window (Table III of `rmi rank`), for
+        # comparison; the per-window predictions of the executed windows are in `sizes`.
+        payload["rank_table3_predicted"] = ranked["rows"]
     return summary, info, payload
 
 

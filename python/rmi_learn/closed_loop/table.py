@@ -83,7 +83,7 @@ def _std(xs: Sequence[float]) -> float | None:
 def summarise(rows: Sequence[Mapping[str, Any]], windows: Sequence[Window]) -> dict[str, Any]:
     """Per size and objective: mean real terminal error (g) of the original, first and
     selected chunks over the windows where all three executed, its standard deviation, the
-    W_T-predicted errors of the same windows, the fraction of windows where the selected
+    scorer's predicted errors of the same windows, the fraction of windows where the selected
     chunk is strictly better (and tied) in reality, the ratio selected / first of the mean
     real errors, grasp failures, chunks that end in another controller phase than the
     collected trajectory at the goal row (e.g. a hold whose lift gate did not open), and
@@ -177,8 +177,12 @@ def markdown(summary: Mapping[str, Any], info: Mapping[str, Any]) -> str:
         + " | ".join(_fmt(summary[s]["original"]["real_g"]) for s in sizes)
         + " |",
     ]
+    scorer = info.get("scorer_name", "W_T")
     for o in objs:
-        for label, key in ((f"{LABELS[o]}, first sample", "first"), (f"{LABELS[o]} + W_T", "sel")):
+        for label, key in (
+            (f"{LABELS[o]}, first sample", "first"),
+            (f"{LABELS[o]} + {scorer}", "sel"),
+        ):
             field = "first_real_g" if key == "first" else "selected_real_g"
             lines.append(
                 f"| {label} | "
@@ -190,7 +194,7 @@ def markdown(summary: Mapping[str, Any], info: Mapping[str, Any]) -> str:
     )
     lines += [
         "",
-        "**Real (simulated) against W_T-predicted error of the same windows (g)**",
+        f"**Real (simulated) against {scorer}-predicted error of the same windows (g)**",
         "",
         "| Policy | Size | n | first: predicted | first: real | selected: predicted | "
         "selected: real | real selected / first | selected better (tied) |",
@@ -222,7 +226,7 @@ def markdown(summary: Mapping[str, Any], info: Mapping[str, Any]) -> str:
         + ".",
         "",
         f"Goal g: the collected M_L at t + {info['chunk_steps']}. Sweep `{info['sweep']}`, chunks "
-        f"`{info['chunks']}`. Predicted values are `J_M` of `rmi rank` (biased toward W_T, "
+        f"`{info['chunks']}`. Predicted values are `J_M` of `rmi rank` (biased toward {scorer}, "
         "which selected the chunk).",
     ]
     return "\n".join(lines) + "\n"

@@ -7,8 +7,10 @@ causal world model W_T with the paper's cost (:mod:`rmi_learn.planning.cost`,
 window of a dataset split (per sponge size; the goal g is the collected M_L at t + 32) for
 each given policy and writes to its output directory:
 
-- ``table3_ranking.{md,json}``: W_T-predicted terminal water error |M_hat - g| in grams for
-  the original chunk, the first sample and the selected sample, per size and objective.
+- ``table3_ranking.{md,json}``: the scorer's predicted terminal water error |M_hat - g| in
+  grams for the original chunk, the first sample and the selected sample, per size and
+  objective. The paper's scorer is W_T; another world model run given as the scorer names
+  the rows and titles instead (``scorer_name`` in the JSON).
 - ``table5_imitation.{md,json}``: force MAE of the first sample against the original chunk and
   its mean absolute force change per step (smooth_F), in N.
 - ``tableS1_cost.{md,json}``: combined predicted cost J.
@@ -43,6 +45,13 @@ from rmi_learn.policies.checkpoint import goal_from_batch, load_policy
 #: Sponge sizes of the tables (cm) and the tables' names of the objectives.
 SIZES: tuple[int, ...] = SPONGE_SIZES_CM
 LABELS = {"diffusion": "Diffusion policy", "flow": "Flow matching"}
+
+
+def scorer_name(kind: str) -> str:
+    """The tables' name of a scoring world model of ``kind``: the paper's ``W_T`` for the
+    Transformer, else the model's table name (``AC-GRU-WM``, ``Linear-ARX``, ...)."""
+    return "W_T" if kind == "transformer" else models.DISPLAY_NAMES.get(kind, kind)
+
 
 #: Per size, the per-window arrays of one policy's ranking (costs and force measures).
 PerSize = dict[int, dict[str, np.ndarray]]
@@ -95,7 +104,7 @@ def _standardiser(ds: Any, wm_cfg: Mapping[str, Any], device: str) -> Standardis
     """The dataset's standardisation on ``device``, checked against the world model's."""
     wm_stats = (wm_cfg.get("extra") or {}).get("stats")
     if wm_stats is not None and not stats_close(ds.stats, wm_stats):
-        raise InputError("W_T was trained with other standardisation statistics")
+        raise InputError("--wm was trained with other standardisation statistics")
     std = Standardiser.from_stats(ds.stats)
     return Standardiser(*(x.to(device) for x in (std.z_mean, std.z_std, std.u_mean, std.u_std)))
 
@@ -203,6 +212,7 @@ class _Tables:
         self, out: Path, per: Mapping[str, PerSize], policies: Sequence[str], common: dict
     ) -> None:
         self.out, self.per, self.policies, self.common = out, per, list(policies), common
+        self.scorer = str(common["scorer_name"])
         self.first_obj = self.policies[0]
         self.header = ["Method"] + [f"{s} cm" for s in SIZES]
 
@@ -222,7 +232,7 @@ class _Tables:
             for o in self.policies
             for item in (
                 (f"{LABELS[o]}, first sample", o, f"first_{metric}"),
-                (f"{LABELS[o]} + W_T", o, f"sel_{metric}"),
+                (f"{LABELS[o]} + {self.scorer}", o, f"sel_{metric}"),
             )
         ]
         built = [self.row(label, obj, key) for label, obj, key in sources]
@@ -234,8 +244,8 @@ class _Tables:
             self.out,
             "table3_ranking",
             _markdown(
-                "Table III. W_T-predicted terminal water error |M_hat - g| (g), K = "
-                f"{k}, {split} split",
+                f"Table III. {self.scorer}-predicted terminal water error |M_hat - g| (g), "
+                f"K = {k}, {split} split",
                 self.header,
                 md_rows,
             ),
@@ -338,13 +348,15 @@ def rank(
         timing[obj_name] = time.perf_counter() - t0
         _write_chunks(out, obj_name, chunks, ds)
 
+    name = scorer_name(str(wm_cfg["model"]["kind"]))
     common = {
         "split": split,
         "k": k,
         "n_windows": {str(s): n_windows.get(s, 0) for s in SIZES},
         "scorer": str(wm),
+        "scorer_name": name,
         "policies": {n: str(v) for n, v in policies.items()},
-        "note": "predicted by the scorer W_T that selects the chunk (biased toward it)",
+        "note": f"predicted by the scorer {name} that selects the chunk (biased toward it)",
     }
     tables = _Tables(out, per, list(policies), common)
     tables.table3(k, split)
@@ -353,4 +365,4 @@ def rank(
     return {"out": str(out), "n_windows": common["n_windows"], "seconds": timing}
 
 
-__all__ = ["LABELS", "SIZES", "rank"]
+__all__ = ["LABELS", "SIZES", "rank", "scorer_name"]
