@@ -71,9 +71,10 @@ test-rust:
 	cargo test --release
 
 # A hung test (a deadlock) fails the run after 30 minutes instead of holding CI: SIGABRT makes
-# pytest's fault handler print every thread's traceback first. The suite takes about 3 minutes.
+# pytest's fault handler print every thread's traceback first. The slowest tests are listed at
+# the end, so a run that grows shows where.
 test-python: setup
-	timeout --signal=ABRT 1800 $(VENV_PY) -m pytest -q tests
+	timeout --signal=ABRT 1800 $(VENV_PY) -m pytest -q --durations=15 tests
 
 demo: setup
 	cargo run --release -p rmi-benches --bin demo
