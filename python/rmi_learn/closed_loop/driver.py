@@ -250,12 +250,10 @@ def _payload(
     """The summary, the table's settings and the JSON payload of ``table_closed_loop``."""
     summary = summarise(rows, inputs.windows)
     table3 = cdir / "table3_ranking.json"
-    ranked: dict[str, Any] = {}
-    if table3.exists():
-        try:
-            ranked = json.loads(table3.read_text())
-        except ValueError:
-            ranked = {}
+    try:
+        ranked: dict[str, Any] = json.loads(table3.read_text()) if table3.exists() else {}
+    except ValueError:
+        ranked = {}
     # Rankings written before the scorer was named in them were all W_T's.
     scorer = str(ranked.get("scorer_name", "W_T"))
     info = {

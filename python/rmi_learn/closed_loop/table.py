@@ -177,7 +177,7 @@ def markdown(summary: Mapping[str, Any], info: Mapping[str, Any]) -> str:
         + " | ".join(_fmt(summary[s]["original"]["real_g"]) for s in sizes)
         + " |",
     ]
-    scorer = info.get("scorer_name", "W_T")
+    scorer = info["scorer_name"]
     for o in objs:
         for label, key in (
             (f"{LABELS[o]}, first sample", "first"),
