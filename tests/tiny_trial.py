@@ -24,3 +24,13 @@ TINY: dict[str, Any] = dict(
 def tiny_config(**kw: Any) -> dict[str, Any]:
     """The tiny trial config; keyword arguments override `TINY` or add `trial_config` ones."""
     return rmi_sph.trial_config(8, 0.8, 20.0, 150.0, 0.01, **{**TINY, **kw})
+
+
+def records_until(sim: Any, phase: str, substeps: int) -> list[dict[str, Any]]:
+    """Step ``sim`` one control step (``substeps`` engine steps) at a time until its phase is
+    ``phase``; the records from the start, the last one at the first step in ``phase``."""
+    recs = [sim.take_record()]
+    while sim.phase != phase:
+        sim.step(substeps)
+        recs.append(sim.take_record())
+    return recs

@@ -15,7 +15,7 @@ from rmi_learn.control_bench.feedback.estimators import PrivilegedEstimate, Weig
 from rmi_learn.control_bench.feedback.laws import PI, Fixed, Hold
 from rmi_learn.sensing import SensorModel, dry_mass
 from rmi_learn.sim.replay import control_substeps
-from tiny_trial import tiny_config
+from tiny_trial import records_until, tiny_config
 
 H = 16
 
@@ -24,10 +24,7 @@ def _start(threads: int) -> tuple[Plant, bytes, list[dict[str, Any]], float]:
     """The tiny trial in its squeeze (lifted), with the records of the steps before."""
     sim = rmi_sph.Trial(tiny_config(), num_threads=threads)
     n = control_substeps(float(sim.dt))
-    recs = [sim.take_record()]
-    while sim.phase != "squeeze":
-        sim.step(n)
-        recs.append(sim.take_record())
+    recs = records_until(sim, "squeeze", n)
     return Plant(sim, n, 16.0, 400.0, 20.0), sim.get_state(), recs[-8:], dry_mass(sim)
 
 

@@ -2,7 +2,9 @@
 
 Steps: read the protocol and the sweep; draw the start states; per size and fold (one
 held-out (porosity, F_hold) group each) fit the sensor-mode estimators on the other groups'
-runs; execute the PI gain candidates from the other groups' tuning states and keep, per fold
+runs; when the protocol lists ``pi-settle``, execute the release probes from the tuning
+states and fit its estimator per fold on the other groups' probes; execute the PI gain
+candidates from the other groups' tuning states and keep, per fold
 and estimator, the gains with the least mean reach error; execute every controller from the
 test states with their own fold's choices; write the rows, the choices and the summary.
 Rows are checkpointed per run under the protocol's digest: a rerun resumes, and an output of
@@ -33,8 +35,9 @@ from rmi_learn.control_bench.feedback.held_out import (
     read_runs,
 )
 from rmi_learn.control_bench.feedback.protocol import CONTROLLERS, Protocol, load_protocol
+from rmi_learn.control_bench.feedback.release import PROBE_SCHEMA, SETTLE_CONTROLLER, fit_settle
 from rmi_learn.control_bench.feedback.report import markdown
-from rmi_learn.control_bench.feedback.worker import RunJob, run_job
+from rmi_learn.control_bench.feedback.worker import RunJob, probe_job, run_job
 from rmi_learn.data.checkpoint_rows import read_rows, write_rows
 from rmi_learn.data.output_lock import output_lock
 from rmi_learn.data.runs import atomic_write_json
@@ -44,6 +47,7 @@ from rmi_learn.sim.replay import load_index
 
 LOCK_NAME = "control-bench-protocol"
 ROWS_FILE = "protocol_rows.parquet"
+PROBES_FILE = "release_probes.parquet"
 DIGEST_KEY = "rmi.protocol.digest"
 SCHEMA: dict[str, Any] = {
     "run_id": pl.String,
@@ -123,18 +127,20 @@ def _run_jobs(
     save: Any,
     log: Any,
     what: str,
+    work: Any = run_job,
 ) -> list[dict[str, Any]]:
-    """Run ``jobs`` (in this process, or a pool of ``workers``), saving the rows after each."""
+    """Run ``work`` on ``jobs`` (in this process, or a pool of ``workers``), saving the rows
+    after each."""
     rows = list(done)
     if not jobs:
         return rows
     pool = None
     if workers <= 1:
-        results: Any = map(run_job, jobs)
+        results: Any = map(work, jobs)
     else:
         ctx = multiprocessing.get_context("spawn")
         pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
-        results = pool.map(run_job, jobs)
+        results = pool.map(work, jobs)
     try:
         for i, (job, res) in enumerate(zip(jobs, results, strict=True)):
             rows += res
@@ -176,13 +182,46 @@ def _jobs(
     return jobs
 
 
+def _release_probes(
+    p: Protocol,
+    infos: Sequence[RunInfo],
+    ticks: Sequence[StartTick],
+    fits: dict[int, dict[str, Fits]],
+    out: Path,
+    workers: int,
+    threads: int,
+    log: Any,
+) -> None:
+    """Execute the release probes of the tuning states (resumed per run from ``out``) and
+    give each fold's fits the settle estimator of the other groups' probes."""
+    path = out / PROBES_FILE
+    done = _load_done(path, p.digest)
+
+    def save(rows: list[dict[str, Any]]) -> None:
+        write_rows(path, rows, PROBE_SCHEMA, {DIGEST_KEY: p.digest, "rmi.protocol.name": p["name"]})
+
+    probed = {r["run_id"] for r in done}
+    jobs = _jobs(p, infos, ticks, "tuning", fits, {}, probed, threads)
+    rows = _run_jobs(jobs, workers, done, save, log, "release probes", probe_job)
+    for size, by_fold in fits.items():
+        for fold, f in by_fold.items():
+            fit = fit_settle(rows, size, fold)
+            if fit is None:
+                raise InputError(
+                    f"no release probe of the groups other than {fold} ({size} cm) ended ok: "
+                    f"{SETTLE_CONTROLLER} has nothing to learn from (see {path})"
+                )
+            f.settle = fit.estimator
+            f.report.update(fit.report)
+
+
 def choose_gains(
     rows: Sequence[dict[str, Any]], names: Sequence[str], fold_names: dict[int, list[str]]
 ) -> dict[int, dict[str, dict[str, tuple[float, float]]]]:
-    """Per size, fold and PI estimator, the (ki, kp) with the least mean reach error over
-    the tuning states of the fold's other groups (executed with the fold's own fits; the
-    privileged loop's executions serve every fold). A failed execution counts as infinitely
-    bad; ties take the smaller gains."""
+    """Per size, fold and PI estimator, the (ki, kp) with the least mean error over the
+    tuning states of the fold's other groups (reach error; settle error for ``pi-settle``;
+    executed with the fold's own fits; the privileged loop's executions serve every fold).
+    A failed execution counts as infinitely bad; ties take the smaller gains."""
     out: dict[int, dict[str, dict[str, tuple[float, float]]]] = {}
     tune = [r for r in rows if r["role"] == "tuning" and r["controller"] in names]
     for size, fold_list in fold_names.items():
@@ -252,6 +291,8 @@ def run_protocol_bench(
         infos = [r for r in read_runs(load_index(runs_p)) if r.size_cm in sizes]
         ticks = draw_states(infos, p["states"], int(p["horizon"]))
         fits = _fits(p, infos, threads)
+        if SETTLE_CONTROLLER in p["controllers"]:
+            _release_probes(p, infos, ticks, fits, out_p, workers, threads, say)
         rows_path = out_p / ROWS_FILE
         done = _load_done(rows_path, p.digest)
 

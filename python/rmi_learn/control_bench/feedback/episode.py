@@ -43,8 +43,9 @@ class Controller(Protocol):
 @dataclass
 class Episode:
     """The outcome: ``status`` (``ok``, ``unstable``, ``error``), the true ``M_L`` (kg) at the
-    end of the task's horizon and after the settle, the setpoints applied (N) and the peak
-    grip load (N)."""
+    end of the task's horizon and after the settle, the setpoints applied (N), the peak
+    grip load (N) and, when asked for, the ticks the controller saw up to the end of the
+    horizon (the history included)."""
 
     status: str = "ok"
     M_L_reach: float | None = None
@@ -52,6 +53,7 @@ class Episode:
     forces: list[float] = field(default_factory=list)
     peak_force_N: float | None = None
     error: str | None = None
+    seen: list[Tick] = field(default_factory=list)
 
 
 @dataclass
@@ -79,12 +81,14 @@ def run_episode(
     settle_ticks: int,
     sensors: SensorModel | None,
     key: tuple[int, ...],
+    keep_seen: bool = False,
 ) -> Episode:
     """Restore ``state``, hand the controller the observed ``history`` (the true records of
     the control steps up to the state, the last one at the state), run ``horizon`` control
     steps of its setpoints clipped to the plant's bounds, then ``settle_ticks`` at the
     holding force. ``sensors`` None is the privileged mode; the noise of ``key`` is the same
-    for every controller of one start state and goal."""
+    for every controller of one start state and goal. ``keep_seen`` keeps the ticks up to
+    the end of the horizon in ``Episode.seen``."""
     stream = None if sensors is None else SensorStream(sensors, key)
     past = [Tick(r, _observe(stream, r), float(r["F_target"])) for r in history]
     sim = plant.sim
@@ -92,6 +96,7 @@ def run_episode(
     sim.take_record()
     out = Episode()
     controller.start(past)
+    seen = list(past)
     tick = past[-1]
     peak = -np.inf
     try:
@@ -106,6 +111,8 @@ def run_episode(
             peak = max(peak, float(rec["F_meas"]))
             out.forces.append(u)
             tick = Tick(rec, _observe(stream, rec), u)
+            if keep_seen and i < horizon:
+                seen.append(tick)
             if i == horizon - 1:
                 out.M_L_reach = float(rec["M_L"])
         out.M_L_settle = float(tick.record["M_L"]) if settle_ticks else None
@@ -116,6 +123,8 @@ def run_episode(
     out.peak_force_N = float(peak) if out.forces else None
     if out.status != "ok":
         out.M_L_reach = out.M_L_settle = None
+    elif keep_seen:
+        out.seen = seen
     return out
 
 

@@ -65,12 +65,15 @@ def run_rows(run: RunInfo, sensors: SensorModel, phases: Sequence[str], m_dry: f
 @dataclass
 class Fits:
     """The fitted estimators of one size, with their diagnostics (RMS errors, kg); the
-    weight estimate takes the executed sponge's own dry mass beside the fitted offset."""
+    weight estimate takes the executed sponge's own dry mass beside the fitted offset.
+    ``settle`` is the settle-predicting estimator, fitted on release probes
+    (:mod:`rmi_learn.control_bench.feedback.release`) when the protocol lists it."""
 
     weight_offset_kg: float
     width: WidthEstimate
     learned: LearnedEstimate
     report: dict[str, Any]
+    settle: LearnedEstimate | None = None
 
 
 def _rms(e: np.ndarray) -> float:

@@ -19,7 +19,10 @@ Fields (all required unless marked):
 - ``sensors``: the sensor model (:class:`rmi_learn.sensing.SensorModel` fields);
 - ``controllers``: names of :data:`CONTROLLERS`;
 - ``pi``: ``ki`` (N/(kg s)) and ``kp`` (N/kg) candidate lists, tuned per size and estimator
-  on the tuning states' reach error;
+  on the tuning states' reach error (``pi-settle``: the settle error);
+- ``release_probes`` (required with ``pi-settle``): ``setpoints`` (2-20, spaced evenly over
+  the setpoint bounds) and ``ticks`` (control steps before the release, each in [1,
+  horizon]), executed from every tuning state (:mod:`~rmi_learn.control_bench.feedback.release`);
 - ``references``: the PI controller each observation mode's ratios are taken against;
 - ``bootstrap``: ``resamples`` and ``seed`` of the cluster bootstrap by run.
 """
@@ -43,6 +46,7 @@ CONTROLLERS: dict[str, str] = {
     "pi-weight": "sensors",
     "pi-width": "sensors",
     "pi-learned": "sensors",
+    "pi-settle": "sensors",
     "hold": "sensors",
     "scripted": "sensors",
     "oracle-constant": "oracle",
@@ -132,6 +136,25 @@ def validate(raw: Mapping[str, Any]) -> Protocol:
         raise InputError(
             f"protocol controllers must be a non-empty list of {', '.join(CONTROLLERS)}"
         )
+    if "pi-settle" in ctrls:
+        if "settle" not in tasks:
+            raise InputError("protocol controllers: pi-settle needs the settle task in tasks")
+        probes = _obj(raw, "release_probes")
+        _int(probes, "setpoints", 2, 20, "release_probes.")
+        ticks = probes.get("ticks")
+        ok = (
+            isinstance(ticks, list)
+            and ticks
+            and all(
+                isinstance(k, int) and not isinstance(k, bool) and 1 <= k <= raw["horizon"]
+                for k in ticks
+            )
+        )
+        if not ok:
+            raise InputError(
+                "protocol release_probes.ticks must be a non-empty list of integers in "
+                f"[1, {raw['horizon']}] (the horizon)"
+            )
     pi = _obj(raw, "pi")
     _numbers(pi, "ki", "pi.", 0.0, 1e8)
     _numbers(pi, "kp", "pi.", 0.0, 1e8)

@@ -96,10 +96,18 @@ def markdown(result: Mapping[str, Any]) -> str:
     for size, per in result["estimators"].items():
         for fold, rep in per.items():
             cv = min(v for v in rep["learned_cv_rms_kg"].values())
+            settle = ""
+            if "settle_cv_rms_kg" in rep:
+                scv = min(v for v in rep["settle_cv_rms_kg"].values())
+                settle = (
+                    f"; water outside the pores after the release {rep['settle_rms_kg'] * 1e3:.2f} "
+                    f"(left-out training group {scv * 1e3:.2f}; target spread "
+                    f"{rep['settle_target_std_kg'] * 1e3:.2f}) over {rep['probes']} probes"
+                )
             lines.append(
                 f"- {size} cm, fold {fold}: weight {rep['weight_rms_kg'] * 1e3:.2f}, "
                 f"width {rep['width_rms_kg'] * 1e3:.2f}, learned {rep['learned_rms_kg'] * 1e3:.2f} "
-                f"(left-out training group {cv * 1e3:.2f}) over {rep['rows']} rows"
+                f"(left-out training group {cv * 1e3:.2f}) over {rep['rows']} rows{settle}"
             )
     lines += ["", "## Tuned PI gains per fold (ki N/(kg s), kp N/kg)", ""]
     for size, per in result["gains"].items():

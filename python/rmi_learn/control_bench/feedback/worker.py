@@ -22,6 +22,7 @@ from rmi_learn.control_bench.feedback.estimators import (
 from rmi_learn.control_bench.feedback.fitting import Fits, run_key
 from rmi_learn.control_bench.feedback.held_out import RunInfo, fold_of, substeps_of
 from rmi_learn.control_bench.feedback.laws import PI, Fixed, Hold
+from rmi_learn.control_bench.feedback.release import SETTLE_CONTROLLER, probe_rows
 from rmi_learn.data.schema import FORCE_LIMIT_N
 from rmi_learn.sensing import SensorModel, dry_mass
 from rmi_learn.sim.execute import clip_force
@@ -101,6 +102,9 @@ class StateWork:
             return WeightEstimate(self.m_dry, fits.weight_offset_kg)
         if name == "pi-width":
             return WidthEstimate(fits.width.a, fits.width.b, self.m_dry)
+        if name == SETTLE_CONTROLLER:
+            assert fits.settle is not None
+            return LearnedEstimate(fits.settle.model, self.m_dry)
         return LearnedEstimate(fits.learned.model, self.m_dry)
 
     def run(self, controller: Controller, sensing: bool, settle: bool, task: int = 0) -> Episode:
@@ -113,6 +117,21 @@ class StateWork:
             self.settle if settle else 0,
             self.job.sensors if sensing else None,
             _key(self.job, self.snap.tick, task),
+        )
+
+    def execute(self, controller: Controller, horizon: int, settle: bool, key: int) -> Episode:
+        """``controller`` sensing for ``horizon`` control steps, then the settle if asked;
+        the episode keeps the ticks it saw."""
+        return run_episode(
+            self.plant,
+            self.snap.state,
+            self.snap.history,
+            controller,
+            horizon,
+            self.settle if settle else 0,
+            self.job.sensors,
+            _key(self.job, self.snap.tick, key),
+            keep_seen=True,
         )
 
     def constant(self, c: float, settle: bool) -> Episode:
@@ -204,11 +223,15 @@ def _bisect(
 
 
 def tuning_rows(work: StateWork, role: str) -> list[dict[str, Any]]:
-    """Every PI gain candidate on the reach goal (horizon only), for the tuning."""
+    """Every PI gain candidate on the reach goal (horizon only), for the tuning; the
+    settle-predicting loop's candidates on the settle goal (the settle included)."""
     job, snap = work.job, work.snap
     lo, hi = work.plant.lo_N, work.plant.hi_N
-    e_lo, e_hi = work.constant(lo, False), work.constant(hi, False)
+    names = [c for c in job.protocol["controllers"] if c.startswith("pi-")]
+    settles = SETTLE_CONTROLLER in names
+    e_lo, e_hi = work.constant(lo, settles), work.constant(hi, settles)
     goal = work.goal(e_lo, e_hi, "M_L_reach", 0)
+    settle_goal = work.goal(e_lo, e_hi, "M_L_settle", 1) if settles else None
     rows: list[dict[str, Any]] = []
     if goal is None:
         return [
@@ -222,18 +245,21 @@ def tuning_rows(work: StateWork, role: str) -> list[dict[str, Any]]:
                 e_lo if e_lo.status != "ok" else e_hi,
             )
         ]
-    names = [c for c in job.protocol["controllers"] if c.startswith("pi-")]
     for name in names:
         # The privileged loop needs no fit: one execution serves every fold.
         fold_fits: dict[str | None, Fits | None] = (
             {None: None} if name == "pi-privileged" else dict(job.fits.items())
         )
+        task, target = ("settle", settle_goal) if name == SETTLE_CONTROLLER else ("reach", goal)
+        if target is None:
+            continue
+        settle = task == "settle"
         for fold, fits in fold_fits.items():
             for ki in job.protocol["pi"]["ki"]:
                 for kp in job.protocol["pi"]["kp"]:
-                    e = work.pi(name, fits, goal, (ki, kp), False, 0)
+                    e = work.pi(name, fits, target, (ki, kp), settle, int(settle))
                     rows.append(
-                        _row(job, snap, role, "reach", goal, name, e, ki=ki, kp=kp, fold=fold)
+                        _row(job, snap, role, task, target, name, e, ki=ki, kp=kp, fold=fold)
                     )
     return rows
 
@@ -268,21 +294,31 @@ def test_rows(work: StateWork, role: str) -> list[dict[str, Any]]:
     return rows
 
 
-def run_job(job: RunJob) -> list[dict[str, Any]]:
-    """All rows of one run's start states (tuning rows when its ticks are tuning ones)."""
+def _states(job: RunJob) -> list[StateWork]:
+    """Replay the run to its start ticks; one :class:`StateWork` per tick."""
     p = job.protocol
     history = WINDOW + job.sensors.latency_ticks
     sim, snaps = replay(job.run, [k for k, _ in job.ticks], int(p["horizon"]), history, job.threads)
     m_dry = dry_mass(sim)
     lo = clip_force(float(p["setpoint_low_fraction"]) * job.run.F_hold)
     plant = Plant(sim, substeps_of(job.run), lo, FORCE_LIMIT_N, job.run.F_hold)
+    return [StateWork(job, plant, snap, m_dry) for snap in snaps]
+
+
+def run_job(job: RunJob) -> list[dict[str, Any]]:
+    """All rows of one run's start states (tuning rows when its ticks are tuning ones)."""
     roles = dict(job.ticks)
     rows: list[dict[str, Any]] = []
-    for snap in snaps:
-        work = StateWork(job, plant, snap, m_dry)
-        role = roles[snap.tick]
+    for work in _states(job):
+        role = roles[work.snap.tick]
         rows += tuning_rows(work, role) if role == "tuning" else test_rows(work, role)
     return rows
 
 
-__all__ = ["RunJob", "Snapshot", "replay", "run_job"]
+def probe_job(job: RunJob) -> list[dict[str, Any]]:
+    """The release probes of one run's tuning states
+    (:mod:`rmi_learn.control_bench.feedback.release`)."""
+    return [row for work in _states(job) for row in probe_rows(work)]
+
+
+__all__ = ["RunJob", "Snapshot", "probe_job", "replay", "run_job"]

@@ -1,0 +1,143 @@
+"""Release probes: what the sponge keeps once the pads return to F_hold.
+
+The ``settle`` task scores M_L 0.5 s after the release, and the sponge takes back part of
+the water the squeeze pressed onto its surface as it re-expands, so a loop that drives
+M_L (or an estimate of it) to the goal ends above it. A controller that predicts the
+release can aim where the water will settle instead.
+
+A probe executes, from a tuning state, a constant setpoint for ``k`` control steps and then
+the settle at F_hold, and records the sensor window's features at the release
+(:func:`~rmi_learn.control_bench.feedback.estimators.window_features`, the protocol's noise
+and latency) and its target: the weight estimate at the release minus the true M_L after
+the settle, the water that will not be back in the pores. The ``pi-settle`` estimator is the
+weight estimate minus a ridge regression of that target on the features (the water the
+sponge would keep if released now), fitted per fold on the other groups' probes with its
+penalty chosen by leaving one of those groups out. Probes use only tuning states, which
+serve the folds of the other groups.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import polars as pl
+
+from rmi_learn.control_bench.feedback.episode import Tick
+from rmi_learn.control_bench.feedback.estimators import (
+    WINDOW,
+    WZ_INDEX,
+    LearnedEstimate,
+    fit_ridge_grouped,
+    window_features,
+)
+from rmi_learn.control_bench.feedback.held_out import fold_of
+from rmi_learn.control_bench.feedback.laws import Fixed
+from rmi_learn.sensing import weight_estimate
+
+#: The controller that closes its loop on the predicted settled water.
+SETTLE_CONTROLLER = "pi-settle"
+#: Noise keys of the probes start here, clear of the tasks' indices.
+_PROBE_KEY = 100
+#: Columns of the probes' checkpoint file.
+PROBE_SCHEMA: dict[str, Any] = {
+    "run_id": pl.String,
+    "size_cm": pl.Int64,
+    "fold": pl.String,
+    "tick": pl.Int64,
+    "setpoint_N": pl.Float64,
+    "release_tick": pl.Int64,
+    "status": pl.String,
+    "target_kg": pl.Float64,
+    "features": pl.List(pl.Float64),
+}
+
+
+def probe_plan(protocol: Mapping[str, Any], lo_N: float, hi_N: float) -> list[tuple[float, int]]:
+    """The (setpoint N, release tick) pairs of one tuning state: ``release_probes.setpoints``
+    setpoints spaced evenly over [``lo_N``, ``hi_N``] (both ends included), each released
+    after every one of ``release_probes.ticks`` control steps."""
+    spec = protocol["release_probes"]
+    cs = np.linspace(lo_N, hi_N, int(spec["setpoints"]))
+    return [(float(c), int(k)) for c in cs for k in spec["ticks"]]
+
+
+def release_features(seen: Sequence[Tick], m_dry: float) -> np.ndarray:
+    """The estimator's features of the last ticks seen (observed rows and setpoints)."""
+    rows = list(seen)[-WINDOW:]
+    obs = np.stack([t.observed for t in rows if t.observed is not None])
+    return window_features(obs, np.array([t.applied for t in rows]), m_dry)
+
+
+def probe_rows(work: Any) -> list[dict[str, Any]]:
+    """Execute the probes of one tuning state (a worker's ``StateWork``) and return their
+    rows; a failed probe keeps its status and no target."""
+    job, snap, plant = work.job, work.snap, work.plant
+    out = []
+    for j, (c, k) in enumerate(probe_plan(job.protocol, plant.lo_N, plant.hi_N)):
+        e = work.execute(Fixed([c]), k, True, _PROBE_KEY + j)
+        ok = e.status == "ok" and e.M_L_settle is not None
+        row: dict[str, Any] = {
+            "run_id": job.run.run_id,
+            "size_cm": job.run.size_cm,
+            "fold": fold_of(job.run),
+            "tick": snap.tick,
+            "setpoint_N": c,
+            "release_tick": k,
+            "status": e.status,
+            "target_kg": None,
+            "features": None,
+        }
+        if ok:
+            obs = e.seen[-1].observed
+            assert obs is not None
+            raw = float(weight_estimate(float(obs[WZ_INDEX]), work.m_dry))
+            row["target_kg"] = raw - float(e.M_L_settle)
+            row["features"] = release_features(e.seen, work.m_dry).tolist()
+        out.append(row)
+    return out
+
+
+@dataclass
+class SettleFit:
+    """The settle estimator of one fold and its diagnostics (RMS errors, kg)."""
+
+    estimator: LearnedEstimate
+    report: dict[str, Any]
+
+
+def fit_settle(rows: Sequence[Mapping[str, Any]], size: int, fold: str) -> SettleFit | None:
+    """The settle estimator of ``fold`` of ``size`` from the probes of the other groups
+    (None when they have no successful probe)."""
+    mine = [
+        r for r in rows if r["size_cm"] == size and r["fold"] != fold and r["target_kg"] is not None
+    ]
+    if not mine:
+        return None
+    x = np.array([r["features"] for r in mine], dtype=np.float64)
+    y = np.array([r["target_kg"] for r in mine], dtype=np.float64)
+    labels = sorted({r["fold"] for r in mine})
+    groups = np.array([labels.index(r["fold"]) for r in mine])
+    model, cv = fit_ridge_grouped(x, y, groups)
+    report = {
+        "probes": len(mine),
+        "settle_penalty": model.penalty,
+        "settle_cv_rms_kg": cv,
+        "settle_rms_kg": float(np.sqrt(np.mean((model.predict(x) - y) ** 2))),
+        "settle_target_mean_kg": float(np.mean(y)),
+        "settle_target_std_kg": float(np.std(y)),
+    }
+    return SettleFit(LearnedEstimate(model), report)
+
+
+__all__ = [
+    "PROBE_SCHEMA",
+    "SETTLE_CONTROLLER",
+    "SettleFit",
+    "fit_settle",
+    "probe_plan",
+    "probe_rows",
+    "release_features",
+]
