@@ -16,9 +16,16 @@ import pytest
 
 import rmi_sph
 from rmi_learn.control_bench.feedback.episode import Plant
-from rmi_learn.control_bench.feedback.estimators import WINDOW, WZ_INDEX
+from rmi_learn.control_bench.feedback.estimators import WINDOW, WZ_INDEX, Ridge
+from rmi_learn.control_bench.feedback.laws import Fixed
 from rmi_learn.control_bench.feedback.protocol import PROTOCOL_DIR, validate
-from rmi_learn.control_bench.feedback.release import fit_settle, probe_plan, probe_rows
+from rmi_learn.control_bench.feedback.release import (
+    SettleEstimate,
+    fit_settle,
+    probe_plan,
+    probe_rows,
+    release_features,
+)
 from rmi_learn.control_bench.feedback.worker import Snapshot, StateWork
 from rmi_learn.errors import InputError
 from rmi_learn.sensing import STANDARD_GRAVITY, SensorModel, dry_mass
@@ -28,7 +35,7 @@ from tiny_trial import records_until, tiny_config
 PROTOCOL: dict[str, Any] = {
     "horizon": 8,
     "settle_ticks": 4,
-    "release_probes": {"setpoints": 2, "ticks": [3, 8]},
+    "release_probes": {"setpoints": 2, "ticks": [3, 8], "penalty": 0.01},
 }
 
 
@@ -74,9 +81,8 @@ def test_a_probe_targets_the_weight_at_the_release_minus_the_settled_water() -> 
         (400.0, 8),
     ]
     assert all(r["status"] == "ok" and np.all(np.isfinite(r["features"])) for r in rows)
+    assert all(r["features"][-1] == 20.0 for r in rows)  # the grip the pads return to
     # Executed again by hand: with exact sensors the target is -W_z/g - m_dry - M_L(settle).
-    from rmi_learn.control_bench.feedback.laws import Fixed
-
     e = work.execute(Fixed([400.0]), 8, True, 0)
     w_z = float(e.seen[-1].observed[WZ_INDEX])
     expected = -w_z / STANDARD_GRAVITY - work.m_dry - e.M_L_settle
@@ -107,15 +113,27 @@ def _rows(fold: str, target: float, n: int = 6) -> list[dict[str, Any]]:
 
 def test_a_folds_fit_never_sees_its_own_group() -> None:
     rows = _rows("a", 0.01) + _rows("b", 0.02) + _rows("c", 0.03)
-    fit = fit_settle(rows, 8, "a")
+    fit = fit_settle(rows, 8, "a", 0.01)
     assert fit is not None and fit.report["probes"] == 12
+    assert set(fit.report["settle_left_out_rms_kg"]) == {"b", "c"}
     poisoned = [{**r, "target_kg": 1e3} if r["fold"] == "a" else r for r in rows]
-    again = fit_settle(poisoned, 8, "a")
+    again = fit_settle(poisoned, 8, "a", 0.01)
     assert again is not None
     x = np.array(rows[0]["features"])
-    assert again.estimator.model.predict(x) == fit.estimator.model.predict(x)
+    assert again.model.predict(x) == fit.model.predict(x)
     failed = [{**r, "target_kg": None} for r in rows if r["fold"] != "a"]
-    assert fit_settle(failed, 8, "a") is None
+    assert fit_settle(failed, 8, "a", 0.01) is None
+
+
+def test_the_settle_estimate_is_the_weight_minus_the_predicted_water_outside() -> None:
+    work = _work(1, SensorModel.noiseless())
+    e = work.execute(Fixed([200.0]), 4, False, 0)
+    x = release_features(e.seen, work.m_dry, 20.0)
+    model = Ridge(np.zeros(x.size), np.ones(x.size), np.eye(x.size)[-1] * 1e-4, 0.002, 1.0)
+    est = SettleEstimate(model, work.m_dry, 20.0)
+    w_z = float(e.seen[-1].observed[WZ_INDEX])
+    expected = -w_z / STANDARD_GRAVITY - work.m_dry - (0.002 + 1e-4 * 20.0)
+    assert est(e.seen) == pytest.approx(expected, rel=1e-12)
 
 
 @pytest.fixture
@@ -134,6 +152,7 @@ def test_the_control_protocol_lists_the_settle_loop_with_its_probes(raw: dict) -
         (lambda r: r.pop("release_probes"), "release_probes must be an object"),
         (lambda r: r["release_probes"].update(setpoints=1), r"setpoints must be an integer in"),
         (lambda r: r["release_probes"].update(ticks=[8, 33]), r"ticks must be .* \[1, 32\]"),
+        (lambda r: r["release_probes"].update(penalty=0), r"penalty must be a number in"),
         (lambda r: r.update(tasks=["reach"]), "pi-settle needs the settle task"),
     ],
 )

@@ -205,13 +205,13 @@ def _release_probes(
     rows = _run_jobs(jobs, workers, done, save, log, "release probes", probe_job)
     for size, by_fold in fits.items():
         for fold, f in by_fold.items():
-            fit = fit_settle(rows, size, fold)
+            fit = fit_settle(rows, size, fold, float(p["release_probes"]["penalty"]))
             if fit is None:
                 raise InputError(
                     f"no release probe of the groups other than {fold} ({size} cm) ended ok: "
                     f"{SETTLE_CONTROLLER} has nothing to learn from (see {path})"
                 )
-            f.settle = fit.estimator
+            f.settle = fit.model
             f.report.update(fit.report)
 
 

@@ -17,6 +17,7 @@ import numpy as np
 from rmi_learn.control_bench.feedback.estimators import (
     W_INDEX,
     LearnedEstimate,
+    Ridge,
     WidthEstimate,
     fit_ridge_grouped,
     run_features,
@@ -66,14 +67,14 @@ def run_rows(run: RunInfo, sensors: SensorModel, phases: Sequence[str], m_dry: f
 class Fits:
     """The fitted estimators of one size, with their diagnostics (RMS errors, kg); the
     weight estimate takes the executed sponge's own dry mass beside the fitted offset.
-    ``settle`` is the settle-predicting estimator, fitted on release probes
+    ``settle`` is the settle-predicting regression, fitted on release probes
     (:mod:`rmi_learn.control_bench.feedback.release`) when the protocol lists it."""
 
     weight_offset_kg: float
     width: WidthEstimate
     learned: LearnedEstimate
     report: dict[str, Any]
-    settle: LearnedEstimate | None = None
+    settle: Ridge | None = None
 
 
 def _rms(e: np.ndarray) -> float:

@@ -21,8 +21,9 @@ Fields (all required unless marked):
 - ``pi``: ``ki`` (N/(kg s)) and ``kp`` (N/kg) candidate lists, tuned per size and estimator
   on the tuning states' reach error (``pi-settle``: the settle error);
 - ``release_probes`` (required with ``pi-settle``): ``setpoints`` (2-20, spaced evenly over
-  the setpoint bounds) and ``ticks`` (control steps before the release, each in [1,
-  horizon]), executed from every tuning state (:mod:`~rmi_learn.control_bench.feedback.release`);
+  the setpoint bounds), ``ticks`` (control steps before the release, each in [1,
+  horizon]) and ``penalty`` (the settle regression's ridge penalty on standardised
+  features), executed from every tuning state (:mod:`~rmi_learn.control_bench.feedback.release`);
 - ``references``: the PI controller each observation mode's ratios are taken against;
 - ``bootstrap``: ``resamples`` and ``seed`` of the cluster bootstrap by run.
 """
@@ -141,6 +142,11 @@ def validate(raw: Mapping[str, Any]) -> Protocol:
             raise InputError("protocol controllers: pi-settle needs the settle task in tasks")
         probes = _obj(raw, "release_probes")
         _int(probes, "setpoints", 2, 20, "release_probes.")
+        lam = probes.get("penalty")
+        if isinstance(lam, bool) or not isinstance(lam, int | float) or not 0.0 < lam <= 1e6:
+            raise InputError(
+                f"protocol release_probes.penalty must be a number in (0, 1e6] (got {lam!r})"
+            )
         ticks = probes.get("ticks")
         ok = (
             isinstance(ticks, list)

@@ -22,7 +22,11 @@ from rmi_learn.control_bench.feedback.estimators import (
 from rmi_learn.control_bench.feedback.fitting import Fits, run_key
 from rmi_learn.control_bench.feedback.held_out import RunInfo, fold_of, substeps_of
 from rmi_learn.control_bench.feedback.laws import PI, Fixed, Hold
-from rmi_learn.control_bench.feedback.release import SETTLE_CONTROLLER, probe_rows
+from rmi_learn.control_bench.feedback.release import (
+    SETTLE_CONTROLLER,
+    SettleEstimate,
+    probe_rows,
+)
 from rmi_learn.data.schema import FORCE_LIMIT_N
 from rmi_learn.sensing import SensorModel, dry_mass
 from rmi_learn.sim.execute import clip_force
@@ -104,7 +108,7 @@ class StateWork:
             return WidthEstimate(fits.width.a, fits.width.b, self.m_dry)
         if name == SETTLE_CONTROLLER:
             assert fits.settle is not None
-            return LearnedEstimate(fits.settle.model, self.m_dry)
+            return SettleEstimate(fits.settle, self.m_dry, self.plant.hold_N)
         return LearnedEstimate(fits.learned.model, self.m_dry)
 
     def run(self, controller: Controller, sensing: bool, settle: bool, task: int = 0) -> Episode:
