@@ -97,11 +97,12 @@ def markdown(result: Mapping[str, Any]) -> str:
         for fold, rep in per.items():
             cv = min(v for v in rep["learned_cv_rms_kg"].values())
             settle = ""
-            if "settle_cv_rms_kg" in rep:
-                scv = min(v for v in rep["settle_cv_rms_kg"].values())
+            if "settle_left_out_rms_kg" in rep:
+                left = [v * 1e3 for v in rep["settle_left_out_rms_kg"].values()]
+                spread = f"{min(left):.2f}-{max(left):.2f}" if left else "-"
                 settle = (
                     f"; water outside the pores after the release {rep['settle_rms_kg'] * 1e3:.2f} "
-                    f"(left-out training group {scv * 1e3:.2f}; target spread "
+                    f"(each training group left out {spread}; target spread "
                     f"{rep['settle_target_std_kg'] * 1e3:.2f}) over {rep['probes']} probes"
                 )
             lines.append(
