@@ -83,7 +83,7 @@ def test_a_probe_targets_the_weight_at_the_release_minus_the_settled_water() -> 
     assert all(r["status"] == "ok" and np.all(np.isfinite(r["features"])) for r in rows)
     assert all(r["features"][-1] == 20.0 for r in rows)  # the grip the pads return to
     # Executed again by hand: with exact sensors the target is -W_z/g - m_dry - M_L(settle).
-    e = work.execute(Fixed([400.0]), 8, True, 0)
+    e = work.run(Fixed([400.0]), True, True, 0, horizon=8, keep_seen=True)
     w_z = float(e.seen[-1].observed[WZ_INDEX])
     expected = -w_z / STANDARD_GRAVITY - work.m_dry - e.M_L_settle
     assert rows[3]["target_kg"] == pytest.approx(expected, rel=1e-12, abs=1e-15)
@@ -127,7 +127,7 @@ def test_a_folds_fit_never_sees_its_own_group() -> None:
 
 def test_the_settle_estimate_is_the_weight_minus_the_predicted_water_outside() -> None:
     work = _work(1, SensorModel.noiseless())
-    e = work.execute(Fixed([200.0]), 4, False, 0)
+    e = work.run(Fixed([200.0]), True, False, 0, horizon=4, keep_seen=True)
     x = release_features(e.seen, work.m_dry, 20.0)
     model = Ridge(np.zeros(x.size), np.ones(x.size), np.eye(x.size)[-1] * 1e-4, 0.002, 1.0)
     est = SettleEstimate(model, work.m_dry, 20.0)

@@ -149,10 +149,20 @@ class WeightEstimate(Estimator):
         return float(weight_estimate(float(obs[WZ_INDEX]), self.m_dry, self.offset))
 
 
-def _raw_weight(ticks: Sequence[Tick], m_dry: float) -> float:
+def raw_weight(ticks: Sequence[Tick], m_dry: float) -> float:
+    """The weight estimate (kg) of the latest tick for a sponge of dry mass ``m_dry`` (kg),
+    no offset."""
     obs = ticks[-1].observed
     assert obs is not None
     return float(weight_estimate(float(obs[WZ_INDEX]), m_dry))
+
+
+def tick_features(ticks: Sequence[Tick], m_dry: float, extra: Sequence[float] = ()) -> np.ndarray:
+    """:func:`window_features` of the last ``WINDOW`` ticks seen, then ``extra``."""
+    rows = ticks[-WINDOW:]
+    obs = np.stack([t.observed for t in rows if t.observed is not None])
+    u = np.array([t.applied for t in rows])
+    return np.append(window_features(obs, u, m_dry), np.asarray(extra, dtype=np.float64))
 
 
 @dataclass
@@ -167,23 +177,22 @@ class WidthEstimate(Estimator):
     def __call__(self, ticks: Sequence[Tick]) -> float:
         obs = ticks[-1].observed
         assert obs is not None
-        return _raw_weight(ticks, self.m_dry) - (self.a + self.b * float(obs[W_INDEX]))
+        return raw_weight(ticks, self.m_dry) - (self.a + self.b * float(obs[W_INDEX]))
 
 
 @dataclass
 class LearnedEstimate(Estimator):
-    """The weight estimate of a sponge of dry mass ``m_dry`` (kg) minus the surface water
-    the ridge ``model`` predicts."""
+    """The weight estimate of a sponge of dry mass ``m_dry`` (kg) minus the water outside
+    the pores that the ridge ``model`` predicts from :func:`tick_features` (with ``extra``
+    appended)."""
 
     model: Ridge
     m_dry: float = 0.0
+    extra: tuple[float, ...] = ()
 
     def __call__(self, ticks: Sequence[Tick]) -> float:
-        rows = ticks[-WINDOW:]
-        obs = np.stack([t.observed for t in rows if t.observed is not None])
-        u = np.array([t.applied for t in rows])
-        surface = float(self.model.predict(window_features(obs, u, self.m_dry))[0])
-        return _raw_weight(ticks, self.m_dry) - surface
+        outside = float(self.model.predict(tick_features(ticks, self.m_dry, self.extra))[0])
+        return raw_weight(ticks, self.m_dry) - outside
 
 
 __all__ = [
@@ -195,6 +204,8 @@ __all__ = [
     "WeightEstimate",
     "WidthEstimate",
     "fit_ridge_grouped",
+    "raw_weight",
     "run_features",
+    "tick_features",
     "window_features",
 ]

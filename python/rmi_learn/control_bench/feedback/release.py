@@ -34,15 +34,13 @@ import polars as pl
 
 from rmi_learn.control_bench.feedback.episode import Tick
 from rmi_learn.control_bench.feedback.estimators import (
-    WINDOW,
-    WZ_INDEX,
-    Estimator,
+    LearnedEstimate,
     Ridge,
-    window_features,
+    raw_weight,
+    tick_features,
 )
 from rmi_learn.control_bench.feedback.held_out import fold_of
 from rmi_learn.control_bench.feedback.laws import Fixed
-from rmi_learn.sensing import weight_estimate
 
 #: The controller that closes its loop on the predicted settled water.
 SETTLE_CONTROLLER = "pi-settle"
@@ -74,28 +72,14 @@ def probe_plan(protocol: Mapping[str, Any], lo_N: float, hi_N: float) -> list[tu
 def release_features(seen: Sequence[Tick], m_dry: float, hold_N: float) -> np.ndarray:
     """The estimator's features of the last ticks seen (observed rows and setpoints) for a
     sponge of dry mass ``m_dry`` (kg) released to ``hold_N`` (N)."""
-    rows = list(seen)[-WINDOW:]
-    obs = np.stack([t.observed for t in rows if t.observed is not None])
-    feats = window_features(obs, np.array([t.applied for t in rows]), m_dry)
-    return np.append(feats, hold_N)
+    return tick_features(list(seen), m_dry, (hold_N,))
 
 
-@dataclass
-class SettleEstimate(Estimator):
-    """The weight estimate of a sponge of dry mass ``m_dry`` (kg) minus the water the ridge
-    ``model`` predicts to stay outside the pores once released to ``hold_N`` (N): the
-    water M_L will settle at (kg)."""
-
-    model: Ridge
-    m_dry: float = 0.0
-    hold_N: float = 0.0
-
-    def __call__(self, ticks: Sequence[Tick]) -> float:
-        obs = ticks[-1].observed
-        assert obs is not None
-        raw = float(weight_estimate(float(obs[WZ_INDEX]), self.m_dry))
-        feats = release_features(ticks, self.m_dry, self.hold_N)
-        return raw - float(self.model.predict(feats)[0])
+def SettleEstimate(model: Ridge, m_dry: float, hold_N: float) -> LearnedEstimate:  # noqa: N802
+    """The water M_L will settle at (kg): the weight estimate of a sponge of dry mass
+    ``m_dry`` (kg) minus the water the ridge ``model`` predicts to stay outside the pores
+    once released to ``hold_N`` (N)."""
+    return LearnedEstimate(model, m_dry, (float(hold_N),))
 
 
 def probe_rows(work: Any) -> list[dict[str, Any]]:
@@ -104,7 +88,7 @@ def probe_rows(work: Any) -> list[dict[str, Any]]:
     job, snap, plant = work.job, work.snap, work.plant
     out = []
     for j, (c, k) in enumerate(probe_plan(job.protocol, plant.lo_N, plant.hi_N)):
-        e = work.execute(Fixed([c]), k, True, _PROBE_KEY + j)
+        e = work.run(Fixed([c]), True, True, _PROBE_KEY + j, horizon=k, keep_seen=True)
         ok = e.status == "ok" and e.M_L_settle is not None
         row: dict[str, Any] = {
             "run_id": job.run.run_id,
@@ -118,10 +102,7 @@ def probe_rows(work: Any) -> list[dict[str, Any]]:
             "features": None,
         }
         if ok:
-            obs = e.seen[-1].observed
-            assert obs is not None
-            raw = float(weight_estimate(float(obs[WZ_INDEX]), work.m_dry))
-            row["target_kg"] = raw - float(e.M_L_settle)
+            row["target_kg"] = raw_weight(e.seen, work.m_dry) - float(e.M_L_settle)
             row["features"] = release_features(e.seen, work.m_dry, plant.hold_N).tolist()
         out.append(row)
     return out

@@ -111,31 +111,27 @@ class StateWork:
             return SettleEstimate(fits.settle, self.m_dry, self.plant.hold_N)
         return LearnedEstimate(fits.learned.model, self.m_dry)
 
-    def run(self, controller: Controller, sensing: bool, settle: bool, task: int = 0) -> Episode:
+    def run(
+        self,
+        controller: Controller,
+        sensing: bool,
+        settle: bool,
+        task: int = 0,
+        horizon: int | None = None,
+        keep_seen: bool = False,
+    ) -> Episode:
+        """``controller`` for ``horizon`` control steps (default: the protocol's), then the
+        settle if asked; ``task`` keys the sensor noise."""
         return run_episode(
             self.plant,
             self.snap.state,
             self.snap.history,
             controller,
-            self.horizon,
+            self.horizon if horizon is None else horizon,
             self.settle if settle else 0,
             self.job.sensors if sensing else None,
             _key(self.job, self.snap.tick, task),
-        )
-
-    def execute(self, controller: Controller, horizon: int, settle: bool, key: int) -> Episode:
-        """``controller`` sensing for ``horizon`` control steps, then the settle if asked;
-        the episode keeps the ticks it saw."""
-        return run_episode(
-            self.plant,
-            self.snap.state,
-            self.snap.history,
-            controller,
-            horizon,
-            self.settle if settle else 0,
-            self.job.sensors,
-            _key(self.job, self.snap.tick, key),
-            keep_seen=True,
+            keep_seen=keep_seen,
         )
 
     def constant(self, c: float, settle: bool) -> Episode:
