@@ -2,8 +2,8 @@
 
 Steps: read the protocol and the sweep; draw the start states; per size and fold (one
 held-out (porosity, F_hold) group each) fit the sensor-mode estimators on the other groups'
-runs; when the protocol lists ``pi-settle``, execute the release probes from the tuning
-states and fit its estimator per fold on the other groups' probes; execute the PI gain
+runs; when the protocol lists ``pi-settle`` or ``mpc-settle``, execute the release probes from the
+tuning states and fit their models per fold on the other groups' probes; execute the PI gain
 candidates from the other groups' tuning states and keep, per fold
 and estimator, the gains with the least mean reach error; execute every controller from the
 test states with their own fold's choices; write the rows, the choices and the summary.
@@ -37,6 +37,7 @@ from rmi_learn.control_bench.feedback.held_out import (
 from rmi_learn.control_bench.feedback.protocol import CONTROLLERS, Protocol, load_protocol
 from rmi_learn.control_bench.feedback.release import PROBE_SCHEMA, SETTLE_CONTROLLER, fit_settle
 from rmi_learn.control_bench.feedback.report import markdown
+from rmi_learn.control_bench.feedback.settle_planner import PLANNER_CONTROLLER, fit_plan
 from rmi_learn.control_bench.feedback.worker import RunJob, probe_job, run_job
 from rmi_learn.data.checkpoint_rows import read_rows, write_rows
 from rmi_learn.data.output_lock import output_lock
@@ -193,7 +194,8 @@ def _release_probes(
     log: Any,
 ) -> None:
     """Execute the release probes of the tuning states (resumed per run from ``out``) and
-    give each fold's fits the settle estimator of the other groups' probes."""
+    give each fold's fits the settle estimator (and, for ``mpc-settle``, the settled-water
+    model) of the other groups' probes."""
     path = out / PROBES_FILE
     done = _load_done(path, p.digest)
 
@@ -213,6 +215,11 @@ def _release_probes(
                 )
             f.settle = fit.model
             f.report.update(fit.report)
+            if PLANNER_CONTROLLER in p["controllers"]:
+                plan = fit_plan(rows, size, fold, float(p["settle_model"]["penalty"]))
+                assert plan is not None  # the same probes as the settle fit's
+                f.plan = plan.model
+                f.report.update(plan.report)
 
 
 def choose_gains(
@@ -291,7 +298,7 @@ def run_protocol_bench(
         infos = [r for r in read_runs(load_index(runs_p)) if r.size_cm in sizes]
         ticks = draw_states(infos, p["states"], int(p["horizon"]))
         fits = _fits(p, infos, threads)
-        if SETTLE_CONTROLLER in p["controllers"]:
+        if {SETTLE_CONTROLLER, PLANNER_CONTROLLER} & set(p["controllers"]):
             _release_probes(p, infos, ticks, fits, out_p, workers, threads, say)
         rows_path = out_p / ROWS_FILE
         done = _load_done(rows_path, p.digest)

@@ -68,13 +68,16 @@ class Fits:
     """The fitted estimators of one size, with their diagnostics (RMS errors, kg); the
     weight estimate takes the executed sponge's own dry mass beside the fitted offset.
     ``settle`` is the settle-predicting regression, fitted on release probes
-    (:mod:`rmi_learn.control_bench.feedback.release`) when the protocol lists it."""
+    (:mod:`rmi_learn.control_bench.feedback.release`) when the protocol lists it; ``plan``
+    the settled-water model of ``mpc-settle`` fitted on the probes' paths
+    (:mod:`rmi_learn.control_bench.feedback.settle_planner`)."""
 
     weight_offset_kg: float
     width: WidthEstimate
     learned: LearnedEstimate
     report: dict[str, Any]
     settle: Ridge | None = None
+    plan: Ridge | None = None
 
 
 def _rms(e: np.ndarray) -> float:

@@ -48,6 +48,7 @@ CONTROLLERS: dict[str, str] = {
     "pi-width": "sensors",
     "pi-learned": "sensors",
     "pi-settle": "sensors",
+    "mpc-settle": "sensors",
     "hold": "sensors",
     "scripted": "sensors",
     "oracle-constant": "oracle",
@@ -97,6 +98,13 @@ def _numbers(m: Mapping[str, Any], key: str, where: str, lo: float, hi: float) -
     return [float(x) for x in v]
 
 
+def _penalty(m: Mapping[str, Any], where: str) -> float:
+    lam = m.get("penalty")
+    if isinstance(lam, bool) or not isinstance(lam, int | float) or not 0.0 < lam <= 1e6:
+        raise InputError(f"protocol {where}penalty must be a number in (0, 1e6] (got {lam!r})")
+    return float(lam)
+
+
 def validate(raw: Mapping[str, Any]) -> Protocol:
     """Check every field (one line naming the first bad one) and compute the digest."""
     if not isinstance(raw, Mapping):
@@ -137,16 +145,18 @@ def validate(raw: Mapping[str, Any]) -> Protocol:
         raise InputError(
             f"protocol controllers must be a non-empty list of {', '.join(CONTROLLERS)}"
         )
-    if "pi-settle" in ctrls:
+    probing = [c for c in ("pi-settle", "mpc-settle") if c in ctrls]
+    if "mpc-settle" in ctrls:
+        model = _obj(raw, "settle_model")
+        _penalty(model, "settle_model.")
+        _int(model, "candidates", 2, 200, "settle_model.")
+        _int(model, "replan_ticks", 1, raw["horizon"], "settle_model.")
+    if probing:
         if "settle" not in tasks:
-            raise InputError("protocol controllers: pi-settle needs the settle task in tasks")
+            raise InputError(f"protocol controllers: {probing[0]} needs the settle task in tasks")
         probes = _obj(raw, "release_probes")
         _int(probes, "setpoints", 2, 20, "release_probes.")
-        lam = probes.get("penalty")
-        if isinstance(lam, bool) or not isinstance(lam, int | float) or not 0.0 < lam <= 1e6:
-            raise InputError(
-                f"protocol release_probes.penalty must be a number in (0, 1e6] (got {lam!r})"
-            )
+        _penalty(probes, "release_probes.")
         ticks = probes.get("ticks")
         ok = (
             isinstance(ticks, list)

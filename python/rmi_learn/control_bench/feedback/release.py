@@ -54,6 +54,7 @@ PROBE_SCHEMA: dict[str, Any] = {
     "tick": pl.Int64,
     "setpoint_N": pl.Float64,
     "release_tick": pl.Int64,
+    "remaining": pl.Int64,
     "status": pl.String,
     "target_kg": pl.Float64,
     "features": pl.List(pl.Float64),
@@ -82,15 +83,19 @@ def SettleEstimate(model: Ridge, m_dry: float, hold_N: float) -> LearnedEstimate
     return LearnedEstimate(model, m_dry, (float(hold_N),))
 
 
-def probe_rows(work: Any) -> list[dict[str, Any]]:
+def probe_rows(work: Any, path: bool = False) -> list[dict[str, Any]]:
     """Execute the probes of one tuning state (a worker's ``StateWork``) and return their
-    rows; a failed probe keeps its status and no target."""
+    rows: one at the release (``remaining`` 0) and, with ``path``, one at every earlier
+    control step of the probe too (``remaining`` the steps left to its release), whose
+    target is the weight estimate there minus the same settled M_L. A failed probe keeps
+    its status and no target."""
     job, snap, plant = work.job, work.snap, work.plant
+    n_past = len(snap.history)
     out = []
     for j, (c, k) in enumerate(probe_plan(job.protocol, plant.lo_N, plant.hi_N)):
         e = work.run(Fixed([c]), True, True, _PROBE_KEY + j, horizon=k, keep_seen=True)
         ok = e.status == "ok" and e.M_L_settle is not None
-        row: dict[str, Any] = {
+        base: dict[str, Any] = {
             "run_id": job.run.run_id,
             "size_cm": job.run.size_cm,
             "fold": fold_of(job.run),
@@ -98,13 +103,20 @@ def probe_rows(work: Any) -> list[dict[str, Any]]:
             "setpoint_N": c,
             "release_tick": k,
             "status": e.status,
-            "target_kg": None,
-            "features": None,
         }
-        if ok:
-            row["target_kg"] = raw_weight(e.seen, work.m_dry) - float(e.M_L_settle)
-            row["features"] = release_features(e.seen, work.m_dry, plant.hold_N).tolist()
-        out.append(row)
+        if not ok:
+            out.append({**base, "remaining": 0, "target_kg": None, "features": None})
+            continue
+        for left in range(k, -1, -1) if path else [0]:
+            seen = e.seen[: n_past + k - left]
+            out.append(
+                {
+                    **base,
+                    "remaining": left,
+                    "target_kg": raw_weight(seen, work.m_dry) - float(e.M_L_settle),
+                    "features": release_features(seen, work.m_dry, plant.hold_N).tolist(),
+                }
+            )
     return out
 
 
@@ -123,21 +135,13 @@ def fit_settle(
     ridge ``penalty`` on standardised features (None when they have no successful probe);
     its report gives the RMS error on those probes and on each of those groups left out in
     turn."""
-    mine = [
-        r for r in rows if r["size_cm"] == size and r["fold"] != fold and r["target_kg"] is not None
-    ]
+    mine = [r for r in training_rows(rows, size, fold) if not r.get("remaining")]
     if not mine:
         return None
     x = np.array([r["features"] for r in mine], dtype=np.float64)
     y = np.array([r["target_kg"] for r in mine], dtype=np.float64)
-    labels = sorted({r["fold"] for r in mine})
-    groups = np.array([labels.index(r["fold"]) for r in mine])
     model = Ridge.fit(x, y, penalty)
-    left_out = {}
-    for g, label in enumerate(labels):
-        if (groups != g).any():
-            m = Ridge.fit(x[groups != g], y[groups != g], penalty)
-            left_out[label] = _rms(m.predict(x[groups == g]) - y[groups == g])
+    (left_out,) = left_out_rms(x, y, [r["fold"] for r in mine], penalty)
     report = {
         "probes": len(mine),
         "settle_penalty": penalty,
@@ -147,6 +151,40 @@ def fit_settle(
         "settle_target_std_kg": float(np.std(y)),
     }
     return SettleFit(model, report)
+
+
+def training_rows(
+    rows: Sequence[Mapping[str, Any]], size: int, fold: str
+) -> list[Mapping[str, Any]]:
+    """The successful probe rows of ``size`` that ``fold`` may learn from (other groups')."""
+    return [
+        r for r in rows if r["size_cm"] == size and r["fold"] != fold and r["target_kg"] is not None
+    ]
+
+
+def left_out_rms(
+    x: np.ndarray,
+    y: np.ndarray,
+    folds: Sequence[str],
+    penalty: float,
+    masks: Sequence[np.ndarray] | None = None,
+) -> list[dict[str, float]]:
+    """For each of ``masks`` (default: all rows), the RMS error (kg) on each group's masked
+    rows of the ridge fitted with ``penalty`` on the other groups' rows (``folds``: each
+    row's group)."""
+    labels = sorted(set(folds))
+    groups = np.array([labels.index(f) for f in folds])
+    masks = [np.ones(len(folds), dtype=bool)] if masks is None else masks
+    out: list[dict[str, float]] = [{} for _ in masks]
+    for g, label in enumerate(labels):
+        if not (groups != g).any():
+            continue
+        m = Ridge.fit(x[groups != g], y[groups != g], penalty)
+        for held, mask in zip(out, masks, strict=True):
+            te = (groups == g) & mask
+            if te.any():
+                held[label] = _rms(m.predict(x[te]) - y[te])
+    return out
 
 
 def _rms(e: np.ndarray) -> float:
@@ -159,7 +197,9 @@ __all__ = [
     "SettleEstimate",
     "SettleFit",
     "fit_settle",
+    "left_out_rms",
     "probe_plan",
     "probe_rows",
     "release_features",
+    "training_rows",
 ]

@@ -16,6 +16,10 @@ def _ci(c: Sequence[float | None] | None, d: int = 2) -> str:
     return f" [{_f(c[0], d)}, {_f(c[1], d)}]"
 
 
+def _spread(v: Sequence[float]) -> str:
+    return f"{min(v):.2f}-{max(v):.2f}" if v else "-"
+
+
 def _line(cell: Mapping[str, Any], name: str) -> Mapping[str, Any] | None:
     return next(
         (c for c in cell["controllers"] if c["controller"] == name and c.get("states")), None
@@ -99,11 +103,19 @@ def markdown(result: Mapping[str, Any]) -> str:
             settle = ""
             if "settle_left_out_rms_kg" in rep:
                 left = [v * 1e3 for v in rep["settle_left_out_rms_kg"].values()]
-                spread = f"{min(left):.2f}-{max(left):.2f}" if left else "-"
+                spread = _spread(left)
                 settle = (
                     f"; water outside the pores after the release {rep['settle_rms_kg'] * 1e3:.2f} "
                     f"(each training group left out {spread}; target spread "
                     f"{rep['settle_target_std_kg'] * 1e3:.2f}) over {rep['probes']} probes"
+                )
+            if "plan_left_out_rms_kg" in rep:
+                left = [v * 1e3 for v in rep["plan_left_out_rms_kg"].values()]
+                first = [v * 1e3 for v in rep["plan_left_out_start_rms_kg"].values()]
+                settle += (
+                    f"; settled-water model {rep['plan_rms_kg'] * 1e3:.2f} (each training group "
+                    f"left out {_spread(left)}, from a probe's start {_spread(first)}) over "
+                    f"{rep['plan_rows']} path rows"
                 )
             lines.append(
                 f"- {size} cm, fold {fold}: weight {rep['weight_rms_kg'] * 1e3:.2f}, "

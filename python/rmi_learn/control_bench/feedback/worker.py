@@ -27,6 +27,7 @@ from rmi_learn.control_bench.feedback.release import (
     SettleEstimate,
     probe_rows,
 )
+from rmi_learn.control_bench.feedback.settle_planner import PLANNER_CONTROLLER, SettlePlanner
 from rmi_learn.data.schema import FORCE_LIMIT_N
 from rmi_learn.sensing import SensorModel, dry_mass
 from rmi_learn.sim.execute import clip_force
@@ -160,6 +161,23 @@ class StateWork:
         )
         return self.run(law, name != "pi-privileged", settle, task)
 
+    def plan(self, fits: Fits, goal: float, task: int) -> Episode:
+        """``mpc-settle`` toward the settled goal ``goal`` (kg), the settle included."""
+        assert fits.plan is not None
+        spec = self.job.protocol["settle_model"]
+        law = SettlePlanner(
+            fits.plan,
+            self.m_dry,
+            self.plant.hold_N,
+            goal,
+            self.horizon,
+            self.plant.lo_N,
+            self.plant.hi_N,
+            int(spec["candidates"]),
+            int(spec["replan_ticks"]),
+        )
+        return self.run(law, True, True, task)
+
 
 def _row(
     job: RunJob,
@@ -291,6 +309,10 @@ def test_rows(work: StateWork, role: str) -> list[dict[str, Any]]:
             ki, kp = job.gains[name]
             e = work.pi(name, fits, goal, (ki, kp), True, ti)
             rows.append(_row(job, snap, role, task, goal, name, e, ki=ki, kp=kp))
+        if PLANNER_CONTROLLER in ctrls:
+            rows.append(
+                _row(job, snap, role, task, goal, PLANNER_CONTROLLER, work.plan(fits, goal, ti))
+            )
     return rows
 
 
@@ -318,7 +340,8 @@ def run_job(job: RunJob) -> list[dict[str, Any]]:
 def probe_job(job: RunJob) -> list[dict[str, Any]]:
     """The release probes of one run's tuning states
     (:mod:`rmi_learn.control_bench.feedback.release`)."""
-    return [row for work in _states(job) for row in probe_rows(work)]
+    path = PLANNER_CONTROLLER in job.protocol["controllers"]
+    return [row for work in _states(job) for row in probe_rows(work, path)]
 
 
 __all__ = ["RunJob", "Snapshot", "probe_job", "replay", "run_job"]
