@@ -19,6 +19,8 @@ from rmi_learn.control_bench.feedback.laws import Fixed
 from rmi_learn.control_bench.feedback.protocol import PROTOCOL_DIR, validate
 from rmi_learn.control_bench.feedback.release import probe_rows, release_features
 from rmi_learn.control_bench.feedback.settle_planner import (
+    FEATURE_SETS,
+    SettleModel,
     SettlePlanner,
     fit_plan,
     plan_features,
@@ -58,7 +60,7 @@ def test_the_plan_terms_vanish_at_the_release_and_measure_the_change_of_grip() -
 
 
 def _rows(fold: str, target: float, n: int = 6) -> list[dict[str, Any]]:
-    rng = np.random.default_rng(len(fold))
+    rng = np.random.default_rng(ord(fold))
     return [
         {
             "size_cm": 8,
@@ -67,7 +69,7 @@ def _rows(fold: str, target: float, n: int = 6) -> list[dict[str, Any]]:
             "release_tick": 8,
             "remaining": i % 4,
             "target_kg": target + 0.001 * i,
-            "features": rng.normal(size=6).tolist(),
+            "features": rng.normal(size=len(FEATURE_SETS["window"])).tolist(),
         }
         for i in range(n)
     ]
@@ -75,15 +77,30 @@ def _rows(fold: str, target: float, n: int = 6) -> list[dict[str, Any]]:
 
 def test_a_folds_model_never_sees_its_own_group() -> None:
     rows = _rows("a", 0.01) + _rows("b", 0.02) + _rows("c", 0.03)
-    fit = fit_plan(rows, 8, "a", 0.01)
+    inputs = list(FEATURE_SETS)
+    fit = fit_plan(rows, 8, "a", 0.01, inputs)
     assert fit is not None and fit.report["plan_rows"] == 12
     assert set(fit.report["plan_left_out_rms_kg"]) == {"b", "c"}
+    assert set(fit.report["plan_inputs_start_rms_kg"]) == set(inputs)
     poisoned = [{**r, "target_kg": 1e3} if r["fold"] == "a" else r for r in rows]
-    again = fit_plan(poisoned, 8, "a", 0.01)
-    assert again is not None
-    x = plan_features(np.array(rows[0]["features"]), np.array([80.0]), 3)
-    assert again.model.predict(x) == fit.model.predict(x)
+    again = fit_plan(poisoned, 8, "a", 0.01, inputs)
+    assert again is not None and again.model.inputs == fit.model.inputs
+    base = np.array(rows[0]["features"])
+    assert again.model.outside(base, [80.0], 3) == fit.model.outside(base, [80.0], 3)
     assert fit_plan([{**r, "target_kg": None} for r in rows], 8, "a", 0.01) is None
+
+
+def test_the_input_set_is_the_one_that_predicts_the_left_out_starts_best() -> None:
+    """A target that only the wrist load's change explains: the sets that read it win."""
+    rows = _rows("a", 0.0, 40) + _rows("b", 0.0, 40) + _rows("c", 0.0, 40)
+    col = FEATURE_SETS["window"].index("change W_z")
+    for r in rows:
+        r["target_kg"] = 0.01 * r["features"][col]
+        r["remaining"] = r["release_tick"] if r["remaining"] % 2 else r["remaining"]
+    fit = fit_plan(rows, 8, "a", 1e-6, ["grip", "grip-and-wrist"])
+    assert fit is not None and fit.model.inputs == "grip-and-wrist"
+    scores = fit.report["plan_inputs_start_rms_kg"]
+    assert scores["grip-and-wrist"] < 1e-4 < scores["grip"]
 
 
 def _planner(goal: float, replan: int) -> tuple[SettlePlanner, Any]:
@@ -94,7 +111,9 @@ def _planner(goal: float, replan: int) -> tuple[SettlePlanner, Any]:
     d = release_features(e.seen, work.m_dry, 20.0).size + 5
     coef = np.zeros(d)
     coef[d - 3] = 1e-5  # the d r term
-    model = Ridge(np.zeros(d), np.ones(d), coef, 0.0, 1.0)
+    model = SettleModel(
+        Ridge(np.zeros(d), np.ones(d), coef, 0.0, 1.0), SettleModel.of("window"), "window"
+    )
     law = SettlePlanner(model, work.m_dry, 20.0, goal, 8, 16.0, 400.0, 5, replan)
     return law, e.seen
 
@@ -125,9 +144,10 @@ def raw() -> dict[str, Any]:
     return json.loads((PROTOCOL_DIR / "control.json").read_text())
 
 
-def test_the_control_protocol_lists_the_planner_with_its_model(raw: dict) -> None:
+def test_the_control_protocol_lists_the_planners_with_their_model(raw: dict) -> None:
     p = validate(raw)
-    assert "mpc-settle" in p["controllers"] and "release_probes" in p.raw
+    assert {"mpc-settle", "model-constant"} <= set(p["controllers"])
+    assert "release_probes" in p.raw and p["settle_model"]["inputs"] == list(FEATURE_SETS)
 
 
 @pytest.mark.parametrize(
@@ -136,11 +156,16 @@ def test_the_control_protocol_lists_the_planner_with_its_model(raw: dict) -> Non
         (lambda r: r.pop("settle_model"), "settle_model must be an object"),
         (lambda r: r["settle_model"].update(penalty=-1), "settle_model.penalty must be a number"),
         (lambda r: r["settle_model"].update(candidates=1), r"candidates must be an integer in"),
+        (lambda r: r["settle_model"].update(inputs=["all"]), "inputs must be a non-empty list of"),
         (lambda r: r["settle_model"].update(replan_ticks=33), r"replan_ticks .* \[1, 32\]"),
         (lambda r: r.pop("release_probes"), "release_probes must be an object"),
         (
             lambda r: (r.update(tasks=["reach"]), r["controllers"].remove("pi-settle")),
             "mpc-settle needs the settle task",
+        ),
+        (
+            lambda r: (r.pop("settle_model"), r["controllers"].remove("mpc-settle")),
+            "settle_model must be an object",
         ),
     ],
 )

@@ -2,8 +2,9 @@
 
 Steps: read the protocol and the sweep; draw the start states; per size and fold (one
 held-out (porosity, F_hold) group each) fit the sensor-mode estimators on the other groups'
-runs; when the protocol lists ``pi-settle`` or ``mpc-settle``, execute the release probes from the
-tuning states and fit their models per fold on the other groups' probes; execute the PI gain
+runs; when the protocol lists ``pi-settle``, ``mpc-settle`` or ``model-constant``, execute
+the release probes from the tuning states and fit their models per fold on the other
+groups' probes; execute the PI gain
 candidates from the other groups' tuning states and keep, per fold
 and estimator, the gains with the least mean reach error; execute every controller from the
 test states with their own fold's choices; write the rows, the choices and the summary.
@@ -37,7 +38,7 @@ from rmi_learn.control_bench.feedback.held_out import (
 from rmi_learn.control_bench.feedback.protocol import CONTROLLERS, Protocol, load_protocol
 from rmi_learn.control_bench.feedback.release import PROBE_SCHEMA, SETTLE_CONTROLLER, fit_settle
 from rmi_learn.control_bench.feedback.report import markdown
-from rmi_learn.control_bench.feedback.settle_planner import PLANNER_CONTROLLER, fit_plan
+from rmi_learn.control_bench.feedback.settle_planner import PLANNERS, fit_plan
 from rmi_learn.control_bench.feedback.worker import RunJob, probe_job, run_job
 from rmi_learn.data.checkpoint_rows import read_rows, write_rows
 from rmi_learn.data.output_lock import output_lock
@@ -215,8 +216,9 @@ def _release_probes(
                 )
             f.settle = fit.model
             f.report.update(fit.report)
-            if PLANNER_CONTROLLER in p["controllers"]:
-                plan = fit_plan(rows, size, fold, float(p["settle_model"]["penalty"]))
+            if set(PLANNERS) & set(p["controllers"]):
+                spec = p["settle_model"]
+                plan = fit_plan(rows, size, fold, float(spec["penalty"]), spec["inputs"])
                 assert plan is not None  # the same probes as the settle fit's
                 f.plan = plan.model
                 f.report.update(plan.report)
@@ -298,7 +300,7 @@ def run_protocol_bench(
         infos = [r for r in read_runs(load_index(runs_p)) if r.size_cm in sizes]
         ticks = draw_states(infos, p["states"], int(p["horizon"]))
         fits = _fits(p, infos, threads)
-        if {SETTLE_CONTROLLER, PLANNER_CONTROLLER} & set(p["controllers"]):
+        if {SETTLE_CONTROLLER, *PLANNERS} & set(p["controllers"]):
             _release_probes(p, infos, ticks, fits, out_p, workers, threads, say)
         rows_path = out_p / ROWS_FILE
         done = _load_done(rows_path, p.digest)

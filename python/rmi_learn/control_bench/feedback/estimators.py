@@ -68,6 +68,24 @@ def window_features(observed: np.ndarray, applied: np.ndarray, m_dry: float) -> 
     )
 
 
+def feature_names() -> list[str]:
+    """The names of :func:`window_features`' entries, in order: ``X``, ``mean X`` and
+    ``first X`` for every channel X but the wrist load, ``change W_i`` and ``mean change
+    W_i`` for the wrist load, then ``u``, ``mean u`` and ``m_dry``."""
+    rest = [SENSOR_NAMES[i] for i in _REST]
+    wrist = [SENSOR_NAMES[i] for i in _W]
+    return [
+        *rest,
+        *(f"mean {n}" for n in rest),
+        *(f"first {n}" for n in rest),
+        *(f"change {n}" for n in wrist),
+        *(f"mean change {n}" for n in wrist),
+        "u",
+        "mean u",
+        "m_dry",
+    ]
+
+
 def run_features(observed: np.ndarray, applied: np.ndarray, m_dry: float) -> np.ndarray:
     """:func:`window_features` at every row of one episode's observed rows (T, C)."""
     return np.stack(
@@ -203,6 +221,7 @@ __all__ = [
     "Ridge",
     "WeightEstimate",
     "WidthEstimate",
+    "feature_names",
     "fit_ridge_grouped",
     "raw_weight",
     "run_features",

@@ -69,7 +69,8 @@ class Fits:
     weight estimate takes the executed sponge's own dry mass beside the fitted offset.
     ``settle`` is the settle-predicting regression, fitted on release probes
     (:mod:`rmi_learn.control_bench.feedback.release`) when the protocol lists it; ``plan``
-    the settled-water model of ``mpc-settle`` fitted on the probes' paths
+    the settled-water model of ``mpc-settle`` and ``model-constant`` (a ``SettleModel``)
+    fitted on the probes' paths
     (:mod:`rmi_learn.control_bench.feedback.settle_planner`)."""
 
     weight_offset_kg: float
@@ -77,7 +78,7 @@ class Fits:
     learned: LearnedEstimate
     report: dict[str, Any]
     settle: Ridge | None = None
-    plan: Ridge | None = None
+    plan: Any = None
 
 
 def _rms(e: np.ndarray) -> float:

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from rmi_learn.control_bench.feedback.settle_planner import FEATURE_SETS
 from rmi_learn.errors import InputError
 from rmi_learn.sensing import SensorModel
 from rmi_learn.user_files import read_user_text
@@ -49,6 +50,7 @@ CONTROLLERS: dict[str, str] = {
     "pi-learned": "sensors",
     "pi-settle": "sensors",
     "mpc-settle": "sensors",
+    "model-constant": "sensors",
     "hold": "sensors",
     "scripted": "sensors",
     "oracle-constant": "oracle",
@@ -145,10 +147,18 @@ def validate(raw: Mapping[str, Any]) -> Protocol:
         raise InputError(
             f"protocol controllers must be a non-empty list of {', '.join(CONTROLLERS)}"
         )
-    probing = [c for c in ("pi-settle", "mpc-settle") if c in ctrls]
-    if "mpc-settle" in ctrls:
+    probing = [c for c in ("pi-settle", "mpc-settle", "model-constant") if c in ctrls]
+    if {"mpc-settle", "model-constant"} & set(ctrls):
         model = _obj(raw, "settle_model")
         _penalty(model, "settle_model.")
+        inputs = model.get("inputs")
+        if (
+            not isinstance(inputs, list)
+            or not inputs
+            or not all(isinstance(n, str) and n in FEATURE_SETS for n in inputs)
+        ):
+            names = ", ".join(FEATURE_SETS)
+            raise InputError(f"protocol settle_model.inputs must be a non-empty list of {names}")
         _int(model, "candidates", 2, 200, "settle_model.")
         _int(model, "replan_ticks", 1, raw["horizon"], "settle_model.")
     if probing:

@@ -113,7 +113,8 @@ def markdown(result: Mapping[str, Any]) -> str:
                 left = [v * 1e3 for v in rep["plan_left_out_rms_kg"].values()]
                 first = [v * 1e3 for v in rep["plan_left_out_start_rms_kg"].values()]
                 settle += (
-                    f"; settled-water model {rep['plan_rms_kg'] * 1e3:.2f} (each training group "
+                    f"; settled-water model on {rep['plan_inputs']} {rep['plan_rms_kg'] * 1e3:.2f} "
+                    f"(each training group "
                     f"left out {_spread(left)}, from a probe's start {_spread(first)}) over "
                     f"{rep['plan_rows']} path rows"
                 )

@@ -27,7 +27,11 @@ from rmi_learn.control_bench.feedback.release import (
     SettleEstimate,
     probe_rows,
 )
-from rmi_learn.control_bench.feedback.settle_planner import PLANNER_CONTROLLER, SettlePlanner
+from rmi_learn.control_bench.feedback.settle_planner import (
+    CONSTANT_CONTROLLER,
+    PLANNERS,
+    SettlePlanner,
+)
 from rmi_learn.data.schema import FORCE_LIMIT_N
 from rmi_learn.sensing import SensorModel, dry_mass
 from rmi_learn.sim.execute import clip_force
@@ -161,10 +165,12 @@ class StateWork:
         )
         return self.run(law, name != "pi-privileged", settle, task)
 
-    def plan(self, fits: Fits, goal: float, task: int) -> Episode:
-        """``mpc-settle`` toward the settled goal ``goal`` (kg), the settle included."""
+    def plan(self, name: str, fits: Fits, goal: float, task: int) -> Episode:
+        """``mpc-settle`` or ``model-constant`` toward the settled goal ``goal`` (kg), the
+        settle included."""
         assert fits.plan is not None
         spec = self.job.protocol["settle_model"]
+        replan = self.horizon if name == CONSTANT_CONTROLLER else int(spec["replan_ticks"])
         law = SettlePlanner(
             fits.plan,
             self.m_dry,
@@ -174,7 +180,7 @@ class StateWork:
             self.plant.lo_N,
             self.plant.hi_N,
             int(spec["candidates"]),
-            int(spec["replan_ticks"]),
+            replan,
         )
         return self.run(law, True, True, task)
 
@@ -309,10 +315,8 @@ def test_rows(work: StateWork, role: str) -> list[dict[str, Any]]:
             ki, kp = job.gains[name]
             e = work.pi(name, fits, goal, (ki, kp), True, ti)
             rows.append(_row(job, snap, role, task, goal, name, e, ki=ki, kp=kp))
-        if PLANNER_CONTROLLER in ctrls:
-            rows.append(
-                _row(job, snap, role, task, goal, PLANNER_CONTROLLER, work.plan(fits, goal, ti))
-            )
+        for name in (c for c in ctrls if c in PLANNERS):
+            rows.append(_row(job, snap, role, task, goal, name, work.plan(name, fits, goal, ti)))
     return rows
 
 
@@ -340,7 +344,7 @@ def run_job(job: RunJob) -> list[dict[str, Any]]:
 def probe_job(job: RunJob) -> list[dict[str, Any]]:
     """The release probes of one run's tuning states
     (:mod:`rmi_learn.control_bench.feedback.release`)."""
-    path = PLANNER_CONTROLLER in job.protocol["controllers"]
+    path = bool(set(PLANNERS) & set(job.protocol["controllers"]))
     return [row for work in _states(job) for row in probe_rows(work, path)]
 
 
