@@ -133,8 +133,8 @@ def fit_settle(
 ) -> SettleFit | None:
     """The settle regression of ``fold`` of ``size`` from the probes of the other groups,
     ridge ``penalty`` on standardised features (None when they have no successful probe);
-    its report gives the RMS error on those probes and on each of those groups left out in
-    turn."""
+    its report gives the RMS error on those probes, on each of those groups left out in
+    turn and, as a diagnostic, on the probes of the fold's own group."""
     mine = [r for r in training_rows(rows, size, fold) if not r.get("remaining")]
     if not mine:
         return None
@@ -150,6 +150,11 @@ def fit_settle(
         "settle_target_mean_kg": float(np.mean(y)),
         "settle_target_std_kg": float(np.std(y)),
     }
+    own = [r for r in own_group_rows(rows, size, fold) if not r.get("remaining")]
+    if own:
+        xo = np.array([r["features"] for r in own], dtype=np.float64)
+        yo = np.array([r["target_kg"] for r in own], dtype=np.float64)
+        report["settle_own_group_rms_kg"] = _rms(model.predict(xo) - yo)
     return SettleFit(model, report)
 
 
@@ -159,6 +164,16 @@ def training_rows(
     """The successful probe rows of ``size`` that ``fold`` may learn from (other groups')."""
     return [
         r for r in rows if r["size_cm"] == size and r["fold"] != fold and r["target_kg"] is not None
+    ]
+
+
+def own_group_rows(
+    rows: Sequence[Mapping[str, Any]], size: int, fold: str
+) -> list[Mapping[str, Any]]:
+    """The successful probe rows of ``fold``'s own group (from its tuning states, which serve
+    the other folds): for a diagnostic after the fit, never for a choice."""
+    return [
+        r for r in rows if r["size_cm"] == size and r["fold"] == fold and r["target_kg"] is not None
     ]
 
 
@@ -198,6 +213,7 @@ __all__ = [
     "SettleFit",
     "fit_settle",
     "left_out_rms",
+    "own_group_rows",
     "probe_plan",
     "probe_rows",
     "release_features",

@@ -16,6 +16,10 @@ def _ci(c: Sequence[float | None] | None, d: int = 2) -> str:
     return f" [{_f(c[0], d)}, {_f(c[1], d)}]"
 
 
+def _own(v: float | None, where: str = "") -> str:
+    return "" if v is None else f" (the held-out group's own probes {where}{v * 1e3:.2f})"
+
+
 def _spread(v: Sequence[float]) -> str:
     return f"{min(v):.2f}-{max(v):.2f}" if v else "-"
 
@@ -108,6 +112,7 @@ def markdown(result: Mapping[str, Any]) -> str:
                     f"; water outside the pores after the release {rep['settle_rms_kg'] * 1e3:.2f} "
                     f"(each training group left out {spread}; target spread "
                     f"{rep['settle_target_std_kg'] * 1e3:.2f}) over {rep['probes']} probes"
+                    + _own(rep.get("settle_own_group_rms_kg"))
                 )
             if "plan_left_out_rms_kg" in rep:
                 left = [v * 1e3 for v in rep["plan_left_out_rms_kg"].values()]
@@ -117,6 +122,7 @@ def markdown(result: Mapping[str, Any]) -> str:
                     f"(each training group "
                     f"left out {_spread(left)}, from a probe's start {_spread(first)}) over "
                     f"{rep['plan_rows']} path rows"
+                    + _own(rep.get("plan_own_group_start_rms_kg"), "at a probe's start ")
                 )
             lines.append(
                 f"- {size} cm, fold {fold}: weight {rep['weight_rms_kg'] * 1e3:.2f}, "

@@ -32,6 +32,7 @@ from rmi_learn.control_bench.feedback.episode import Tick
 from rmi_learn.control_bench.feedback.estimators import Ridge, feature_names, raw_weight
 from rmi_learn.control_bench.feedback.release import (
     left_out_rms,
+    own_group_rows,
     release_features,
     training_rows,
 )
@@ -77,9 +78,11 @@ class SettleModel:
 
     @staticmethod
     def of(inputs: str) -> tuple[int, ...]:
+        """The entries of the release features that the input set ``inputs`` reads."""
         return tuple(_NAMES.index(n) for n in FEATURE_SETS[inputs])
 
     def x(self, base: np.ndarray, setpoints: Any, remaining: Any) -> np.ndarray:
+        """:func:`plan_features` of the release features ``base`` (D,) or (n, D)."""
         return plan_features(np.asarray(base)[..., list(self.columns)], setpoints, remaining)
 
     def outside(self, base: np.ndarray, setpoints: Any, remaining: Any) -> np.ndarray:
@@ -107,7 +110,8 @@ def fit_plan(
     input set of ``inputs`` with the least RMS error at the probes' starts when each of
     those groups is left out in turn (the start is where every plan begins from a state
     the model has not seen). Its report gives each set's left-out errors, the RMS error on
-    the training rows and, for the chosen set, the left-out errors over whole paths."""
+    the training rows, for the chosen set the left-out errors over whole paths and, as a
+    diagnostic, the errors on the probes of the fold's own group (whole paths and starts)."""
     mine = training_rows(rows, size, fold)
     if not mine:
         return None
@@ -141,7 +145,17 @@ def fit_plan(
         "plan_left_out_rms_kg": scores[best][0],
         "plan_left_out_start_rms_kg": scores[best][1],
     }
-    return PlanFit(SettleModel(ridge, cols, best), report)
+    model = SettleModel(ridge, cols, best)
+    own = own_group_rows(rows, size, fold)
+    if own:
+        b = np.array([r["features"] for r in own], dtype=np.float64)
+        k = np.array([int(r.get("remaining") or 0) for r in own])
+        e = model.outside(b, [r["setpoint_N"] for r in own], k) - [r["target_kg"] for r in own]
+        first = k == np.array([int(r["release_tick"]) for r in own])
+        report["plan_own_group_rms_kg"] = float(np.sqrt(np.mean(np.square(e))))
+        if first.any():
+            report["plan_own_group_start_rms_kg"] = float(np.sqrt(np.mean(np.square(e[first]))))
+    return PlanFit(model, report)
 
 
 @dataclass
