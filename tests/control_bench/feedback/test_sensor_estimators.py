@@ -14,6 +14,7 @@ from rmi_learn.control_bench.feedback.estimators import (
     LearnedEstimate,
     Ridge,
     WidthEstimate,
+    feature_names,
     fit_ridge_grouped,
     run_features,
     window_features,
@@ -69,3 +70,15 @@ def test_sensor_estimates_subtract_the_surface_water_from_the_weight() -> None:
     )
     assert learned([t]) == pytest.approx(1.0 - 0.1 - 0.02)
     assert zero.predict(np.zeros((2, 1))).tolist() == [0.02, 0.02]
+
+
+def test_the_feature_names_label_each_window_feature() -> None:
+    obs = np.tile(np.arange(len(SENSOR_NAMES), dtype=np.float64), (4, 1))
+    obs[-1] += 100.0  # the latest row differs from the first and the mean
+    x = window_features(obs, np.full(4, 30.0), 0.05)
+    names = feature_names()
+    assert len(names) == x.size and len(set(names)) == len(names)
+    assert x[names.index("w")] == obs[-1, SENSOR_NAMES.index("w")]
+    assert x[names.index("first F_meas")] == obs[0, SENSOR_NAMES.index("F_meas")]
+    assert x[names.index("change W_z")] == 100.0
+    assert x[names.index("u")] == 30.0 and x[names.index("m_dry")] == 0.05
