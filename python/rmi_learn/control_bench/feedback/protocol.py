@@ -37,7 +37,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rmi_learn.control_bench.feedback.settle_planner import FEATURE_SETS
 from rmi_learn.errors import InputError
 from rmi_learn.sensing import SensorModel
 from rmi_learn.user_files import read_user_text
@@ -149,6 +148,10 @@ def validate(raw: Mapping[str, Any]) -> Protocol:
         )
     probing = [c for c in ("pi-settle", "mpc-settle", "model-constant") if c in ctrls]
     if {"mpc-settle", "model-constant"} & set(ctrls):
+        # Imported here: the planner's module brings the engine and torch, which the
+        # command-line parser (it names the shipped protocols) must not load.
+        from rmi_learn.control_bench.feedback.settle_planner import FEATURE_SETS
+
         model = _obj(raw, "settle_model")
         _penalty(model, "settle_model.")
         inputs = model.get("inputs")
