@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -26,6 +26,9 @@ from rmi_learn.control_bench.feedback.held_out import RunInfo
 from rmi_learn.data.runs import read_run
 from rmi_learn.data.schema import CONTROL_DT
 from rmi_learn.sensing import SENSOR_NAMES, SensorModel, observe_rows, weight_estimate
+
+if TYPE_CHECKING:
+    from rmi_learn.control_bench.feedback.settle_planner import SettleModel
 
 
 def run_key(run: RunInfo) -> tuple[int, ...]:
@@ -78,7 +81,7 @@ class Fits:
     learned: LearnedEstimate
     report: dict[str, Any]
     settle: Ridge | None = None
-    plan: Any = None
+    plan: SettleModel | None = None
 
 
 def _rms(e: np.ndarray) -> float:

@@ -148,8 +148,8 @@ def validate(raw: Mapping[str, Any]) -> Protocol:
         )
     probing = [c for c in ("pi-settle", "mpc-settle", "model-constant") if c in ctrls]
     if {"mpc-settle", "model-constant"} & set(ctrls):
-        # Imported here: the planner's module brings the engine and torch, which the
-        # command-line parser (it names the shipped protocols) must not load.
+        # Imported here: the planner's module brings the engine and (through held_out)
+        # torch, which the command-line parser (it names the shipped protocols) must not load.
         from rmi_learn.control_bench.feedback.settle_planner import FEATURE_SETS
 
         model = _obj(raw, "settle_model")

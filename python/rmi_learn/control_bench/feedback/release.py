@@ -162,9 +162,7 @@ def training_rows(
     rows: Sequence[Mapping[str, Any]], size: int, fold: str
 ) -> list[Mapping[str, Any]]:
     """The successful probe rows of ``size`` that ``fold`` may learn from (other groups')."""
-    return [
-        r for r in rows if r["size_cm"] == size and r["fold"] != fold and r["target_kg"] is not None
-    ]
+    return _successful(rows, size, fold, own=False)
 
 
 def own_group_rows(
@@ -172,8 +170,16 @@ def own_group_rows(
 ) -> list[Mapping[str, Any]]:
     """The successful probe rows of ``fold``'s own group (from its tuning states, which serve
     the other folds): for a diagnostic after the fit, never for a choice."""
+    return _successful(rows, size, fold, own=True)
+
+
+def _successful(
+    rows: Sequence[Mapping[str, Any]], size: int, fold: str, own: bool
+) -> list[Mapping[str, Any]]:
     return [
-        r for r in rows if r["size_cm"] == size and r["fold"] == fold and r["target_kg"] is not None
+        r
+        for r in rows
+        if r["size_cm"] == size and (r["fold"] == fold) == own and r["target_kg"] is not None
     ]
 
 

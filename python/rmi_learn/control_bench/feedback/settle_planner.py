@@ -122,19 +122,17 @@ def fit_plan(
     start = left == np.array([int(r["release_tick"]) for r in mine])
     everywhere = np.ones(len(mine), dtype=bool)
     folds = [r["fold"] for r in mine]
-    scores: dict[str, tuple[dict[str, float], dict[str, float]]] = {}
-    for name in inputs:
-        x = plan_features(base[:, list(SettleModel.of(name))], c, left)
-        held, held_start = left_out_rms(x, y, folds, penalty, [everywhere, start])
-        scores[name] = (held, held_start)
+    xs = {name: plan_features(base[:, list(SettleModel.of(name))], c, left) for name in inputs}
+    scores = {
+        name: left_out_rms(x, y, folds, penalty, [everywhere, start]) for name, x in xs.items()
+    }
 
     def start_rms(name: str) -> float:
         v = list(scores[name][1].values())
         return float(np.sqrt(np.mean(np.square(v)))) if v else np.inf
 
     best = min(inputs, key=start_rms)
-    cols = SettleModel.of(best)
-    x = plan_features(base[:, list(cols)], c, left)
+    x = xs[best]
     ridge = Ridge.fit(x, y, penalty)
     report = {
         "plan_rows": len(mine),
@@ -145,7 +143,7 @@ def fit_plan(
         "plan_left_out_rms_kg": scores[best][0],
         "plan_left_out_start_rms_kg": scores[best][1],
     }
-    model = SettleModel(ridge, cols, best)
+    model = SettleModel(ridge, SettleModel.of(best), best)
     own = own_group_rows(rows, size, fold)
     if own:
         b = np.array([r["features"] for r in own], dtype=np.float64)
@@ -176,10 +174,12 @@ class SettlePlanner:
     _ticks: list[Tick] = field(default_factory=list)
     _i: int = 0
     _u: float = 0.0
+    _cs: np.ndarray = field(default_factory=lambda: np.empty(0))
 
     def start(self, history: list[Tick]) -> None:
         self._ticks, self._i = list(history), 0
         self._u = min(max(history[-1].applied, self.lo_N), self.hi_N)
+        self._cs = np.linspace(self.lo_N, self.hi_N, self.candidates)
 
     def predict(self, setpoints: np.ndarray, remaining: int) -> np.ndarray:
         """The settled water (kg) predicted for each setpoint (N) held ``remaining`` steps
@@ -192,9 +192,8 @@ class SettlePlanner:
         if tick is not self._ticks[-1]:
             self._ticks.append(tick)
         if self._i % self.replan_ticks == 0:
-            cs = np.linspace(self.lo_N, self.hi_N, self.candidates)
-            m_hat = self.predict(cs, self.horizon - self._i)
-            self._u = float(cs[int(np.argmin(np.abs(m_hat - self.goal_kg)))])
+            m_hat = self.predict(self._cs, self.horizon - self._i)
+            self._u = float(self._cs[int(np.argmin(np.abs(m_hat - self.goal_kg)))])
         self._i += 1
         return self._u
 
