@@ -2,8 +2,9 @@
 records, and stages run through their library calls.
 
 Most tests replace the execution of a stage's calls by a recorder, so they take
-milliseconds; one runs the dataset stage through its library function on synthetic runs.
-The real chain runs on the ``tiny`` preset in CI (``make pipeline-tiny``).
+milliseconds (and run a parallel stage's calls in this process, where the recorder is); one
+runs the dataset stage through its library function on synthetic runs, one a parallel stage
+in a real pool. The real chain runs on the ``tiny`` preset in CI (``make pipeline-tiny``).
 """
 
 from __future__ import annotations
@@ -32,6 +33,14 @@ STAGE_ORDER = [
     "closed-loop",
     "report",
 ]
+
+
+REAL_POOL = run_mod.parallel_map
+
+
+@pytest.fixture(autouse=True)
+def _calls_in_this_process(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(run_mod, "parallel_map", lambda fn, calls, workers: list(map(fn, calls)))
 
 
 class Recorder:
@@ -142,7 +151,8 @@ def test_recorded_command_lines(tmp_path: Path) -> None:
     wm = {c.argv[c.argv.index("--out") + 1]: c.argv for c in stages["ablations"].calls()}
     shuffled = wm[str(tmp_path / "wm" / "ac-gru-shuffled")]
     assert shuffled[:4] == ["train-wm", "--model", "ac-gru", "--shuffle-actions"]
-    assert shuffled[-6:] == ["--debug", "--epochs", "1", "--threads", "3", "--no-progress"]
+    # A training runs on one thread whatever --threads says (its weights depend on torch's).
+    assert shuffled[-6:] == ["--debug", "--epochs", "1", "--threads", "1", "--no-progress"]
     groups = wm[str(tmp_path / "wm" / "ac-gru-LS+G")]
     assert groups[:5] == ["train-wm", "--model", "ac-gru", "--state-groups", "LS+G"]
     (ev,) = stages["eval-wm"].calls()
@@ -352,8 +362,11 @@ def test_every_stage_runs_its_library_call_with_the_arguments_it_records(
         + ["eval_wm", "train_policy", "train_policy", "rank", "run_closed_loop"]
         + ["run_control_bench", "run_protocol_bench", "write_report"]
     )
-    # torch's threads are set before each call that runs torch (training, eval, rank, bench).
-    assert {c[1] for c in seen if c[0] == "threads"} == {(3,)}
+    # torch's threads are set before each call that runs torch: one for a training, --threads
+    # for the evaluation, the ranking and the benchmark.
+    before = {c[0]: [seen[i - 1] for i, s in enumerate(seen) if s[0] == c[0]] for c in calls}
+    for name, n in (("train", 1), ("train_policy", 1), ("eval_wm", 3), ("rank", 3)):
+        assert before[name] and all(b == ("threads", (n,), {}) for b in before[name]), name
     by_name = {c[0]: c for c in calls}
     t = tmp_path
     assert by_name["sweep"][1:] == (
@@ -461,3 +474,28 @@ def test_seeds_replicate_the_learned_table_ii_models_with_their_own_seed(tmp_pat
         path.write_text(json.dumps({"grid": "tiny", "seeds": bad}))
         with pytest.raises(ValueError, match="seeds must be a whole number from 1 to 10"):
             load_preset(path=path)
+
+
+def test_a_parallel_stage_runs_its_calls_in_a_pool_and_names_the_one_that_failed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import shutil
+
+    from rmi_learn.pipeline.calls import call, positional
+    from rmi_learn.pipeline.stages import Stage
+
+    monkeypatch.setattr(run_mod, "parallel_map", REAL_POOL)
+    src = tmp_path / "a.txt"
+    src.write_text("x")
+
+    def copy(dst: str, source: Path = src) -> Call:
+        return call("copy", shutil.copyfile, positional("--src", source), positional("--to", dst))
+
+    calls = [copy(str(tmp_path / f"{i}.txt")) for i in range(3)]
+    run_mod._run_calls(Stage("s", "", lambda: calls, parallel=True), calls, 2, lambda s: None)
+    assert [(tmp_path / f"{i}.txt").read_text() for i in range(3)] == ["x"] * 3
+    bad = [copy(str(tmp_path / "b.txt")), copy(str(tmp_path / "c.txt"), tmp_path / "missing")]
+    with pytest.raises(PipelineError, match="stage s failed .* running: rmi copy --src .*missing"):
+        run_mod._run_calls(Stage("s", "", lambda: bad, parallel=True), bad, 2, lambda s: None)
+    # The call that did not fail finished beside it.
+    assert (tmp_path / "b.txt").read_text() == "x"

@@ -26,9 +26,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     src.add_argument("--preset", choices=PRESETS, help="a built-in pipeline")
     src.add_argument("--config", type=Path, metavar="FILE", help="a pipeline JSON file")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory")
-    # The sweep stage runs the preset's workers x threads_per_run; every later stage runs
-    # one call at a time with this many threads.
-    add_threads(parser, "each stage after the sweep (engine and torch)")
+    # The sweep stage runs the preset's workers x threads_per_run; the training stages run this
+    # many trainings at a time on one thread each; every other stage runs its calls one after
+    # another with this many threads.
+    add_threads(
+        parser,
+        "each stage after the sweep (engine and torch; the trainings run that many at a time, "
+        "one thread each)",
+    )
     parser.add_argument(
         "--only", nargs="+", metavar="STAGE", help="run just these stages (default: every one)"
     )

@@ -1,13 +1,17 @@
 """Running a preset's stages into one output directory (:func:`run_pipeline`): each stage
 that has no marker ``OUT/stages/<stage>.json`` yet runs its calls, and a finished stage
-leaves its marker (its wall time and the ``rmi`` command lines of its calls)."""
+leaves its marker (its wall time and the ``rmi`` command lines of its calls). The calls of a
+``parallel`` stage (independent trainings, one torch thread each) run ``threads`` at a time in
+processes of their own."""
 
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +19,7 @@ from rmi_learn import errors
 from rmi_learn.data.runs import atomic_write_json
 from rmi_learn.pipeline.calls import Call
 from rmi_learn.pipeline.config import PipelineConfig
-from rmi_learn.pipeline.stages import Stage, build_stages
+from rmi_learn.pipeline.stages import TRAINING_THREADS, Stage, build_stages
 
 STAGES_SUBDIR = "stages"
 
@@ -39,6 +43,47 @@ def execute_call(call: Call, threads: int) -> int:
             raise
         return status
     return 0
+
+
+def _execute_training(call: Call) -> int:
+    return execute_call(call, TRAINING_THREADS)
+
+
+def parallel_map(fn: Callable[[Call], int], calls: Sequence[Call], workers: int) -> list[int]:
+    """``fn`` of each call in a pool of ``workers`` spawned processes; the statuses in the
+    calls' order. A bug in one call raises here once the calls already running have ended."""
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        futures = [pool.submit(fn, c) for c in calls]
+        try:
+            return [f.result() for f in futures]
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            raise
+
+
+def _run_calls(stage: Stage, calls: list[Call], threads: int, say: Callable[[str], None]) -> None:
+    """Run ``calls`` of ``stage``: one after another, or ``threads`` at a time for a parallel
+    stage. Raises :class:`PipelineError` naming the first call (in the stage's order) that
+    failed."""
+    lines = ["rmi " + " ".join(c.argv) for c in calls]
+    workers = min(threads, len(calls)) if stage.parallel else 1
+    if workers > 1:
+        say(f"  ({workers} at a time, {TRAINING_THREADS} thread each)")
+        for line in lines:
+            say("  $ " + line)
+        statuses = parallel_map(_execute_training, calls, workers)
+    else:
+        statuses = []
+        for c, line in zip(calls, lines, strict=True):
+            say("  $ " + line)
+            statuses.append(execute_call(c, TRAINING_THREADS if stage.parallel else threads))
+            if statuses[-1] != 0:
+                break
+    for rc, line in zip(statuses, lines, strict=False):
+        if rc != 0:
+            raise PipelineError(f"stage {stage.name} failed (exit {rc}) running: {line}")
 
 
 def _check_names(stages: list[Stage], only: list[str] | None, redo: list[str] | None) -> None:
@@ -68,12 +113,7 @@ def _run_stage(stage: Stage, marker: Path, threads: int, say: Callable[[str], No
     Raises :class:`PipelineError` on the first call that fails."""
     t0 = time.perf_counter()
     calls = stage.calls()
-    for c in calls:
-        line = "rmi " + " ".join(c.argv)
-        say("  $ " + line)
-        rc = execute_call(c, threads)
-        if rc != 0:
-            raise PipelineError(f"stage {stage.name} failed (exit {rc}) running: {line}")
+    _run_calls(stage, calls, threads, say)
     done = {
         "stage": stage.name,
         "wall_s": time.perf_counter() - t0,

@@ -45,11 +45,13 @@ _LIST_OPTIONS = ("scorers", "receding_scorers", "refine_scorers", "refine_metric
 
 @dataclass
 class Stage:
-    """One pipeline stage: a name, what it does, and its calls."""
+    """One pipeline stage: a name, what it does, its calls, and whether they are independent
+    trainings (``parallel``) that the pipeline may run side by side, one torch thread each."""
 
     name: str
     title: str
     calls: Callable[[], list[Call]]
+    parallel: bool = False
 
 
 @dataclass(frozen=True)
@@ -111,7 +113,13 @@ def analysis_calls(w: StageContext) -> list[Call]:
     return [call("analyze", physical.analyze, positional("--runs", w.sweep_dir), out)]
 
 
-def _training_args(w: StageContext, out: Arg, given: Mapping[str, Any]) -> list[Arg]:
+#: A training's torch threads. Its weights depend on torch's thread count, so every training
+#: runs on one thread: the result is the same for any ``--threads``, which sets how many
+#: trainings run at a time instead (their stages are ``parallel``).
+TRAINING_THREADS = 1
+
+
+def _training_args(out: Arg, given: Mapping[str, Any]) -> list[Arg]:
     """The arguments a training call into the run directory ``out`` ends with; it resumes
     when that directory has a config (it was interrupted; a finished one returns its summary
     at once)."""
@@ -119,7 +127,7 @@ def _training_args(w: StageContext, out: Arg, given: Mapping[str, Any]) -> list[
     return [
         out,
         *options(given),
-        w.threads_flag(),
+        command_line("--threads", str(TRAINING_THREADS)),
         keyword("progress", False, ["--no-progress"]),
         keyword("resume", resume),
     ]
@@ -138,7 +146,7 @@ def world_model_calls(models: Mapping[str, ModelRun], w: StageContext) -> list[C
             run.args(),
             keyword("data", w.data),
             _training_args(
-                w, keyword("out", w.out / "wm" / name), given if run.seed is None else unseeded
+                keyword("out", w.out / "wm" / name), given if run.seed is None else unseeded
             ),
             torch=True,
         )
@@ -175,7 +183,7 @@ def policy_calls(w: StageContext) -> list[Call]:
             training.train_policy,
             positional("--objective", obj),
             positional("--data", w.data),
-            _training_args(w, positional("--out", w.out / "policy" / obj), given),
+            _training_args(positional("--out", w.out / "policy" / obj), given),
             torch=True,
         )
         for obj in OBJECTIVES
@@ -255,13 +263,14 @@ def report_calls(w: StageContext) -> list[Call]:
 
 @dataclass(frozen=True)
 class StageSpec:
-    """A row of the stage table: the stage's name, what it does, its calls, and whether a
-    preset runs it."""
+    """A row of the stage table: the stage's name, what it does, its calls, whether a
+    preset runs it, and whether its calls are independent trainings (:class:`Stage`)."""
 
     name: str
     title: str
     calls: Callable[[StageContext], list[Call]]
     runs: Callable[[PipelineConfig], bool] = lambda cfg: True
+    parallel: bool = False
 
 
 #: Every stage, in pipeline order.
@@ -277,15 +286,19 @@ STAGES: tuple[StageSpec, ...] = (
         "world-models",
         "train the world models",
         partial(world_model_calls, {**MAIN_MODELS, **SCORER_MODELS}),
+        parallel=True,
     ),
     StageSpec(
         "ablations",
         "train the ablation models",
         partial(world_model_calls, ABLATION_MODELS),
         lambda cfg: cfg.ablations,
+        parallel=True,
     ),
     StageSpec("eval-wm", "evaluate the world models (forecast errors)", eval_calls),
-    StageSpec("policies", "train the diffusion and flow-matching policies", policy_calls),
+    StageSpec(
+        "policies", "train the diffusion and flow-matching policies", policy_calls, parallel=True
+    ),
     StageSpec("rank", "rank policy samples with W_T", rank_calls),
     StageSpec("closed-loop", "execute ranked chunks in the simulator", closed_loop_calls),
     StageSpec(
@@ -308,4 +321,6 @@ def build_stages(cfg: PipelineConfig, out: Path, threads: int) -> list[Stage]:
     """The stages of a preset, in order, with their calls (built lazily, because a training
     stage decides on resuming when it starts)."""
     where = StageContext(cfg, out, threads)
-    return [Stage(s.name, s.title, partial(s.calls, where)) for s in STAGES if s.runs(cfg)]
+    return [
+        Stage(s.name, s.title, partial(s.calls, where), s.parallel) for s in STAGES if s.runs(cfg)
+    ]

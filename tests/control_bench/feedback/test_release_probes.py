@@ -26,7 +26,8 @@ from rmi_learn.control_bench.feedback.release import (
     probe_rows,
     release_features,
 )
-from rmi_learn.control_bench.feedback.worker import Snapshot, StateWork
+from rmi_learn.control_bench.feedback.start_states import Snapshot
+from rmi_learn.control_bench.feedback.worker import StateWork
 from rmi_learn.errors import InputError
 from rmi_learn.sensing import STANDARD_GRAVITY, SensorModel, dry_mass
 from rmi_learn.sim.replay import control_substeps

@@ -9,13 +9,15 @@ candidates from the other groups' tuning states and keep, per fold
 and estimator, the gains with the least mean reach error; execute every controller from the
 test states with their own fold's choices; write the rows, the choices and the summary.
 Rows are checkpointed per run under the protocol's digest: a rerun resumes, and an output of
-another protocol is refused.
+another protocol is refused. Each run is replayed to its start states once; the states wait
+in ``OUT/start_states/`` for the later phases and are removed at the end.
 """
 
 from __future__ import annotations
 
 import json
 import multiprocessing
+import shutil
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -26,6 +28,7 @@ import polars as pl
 
 import rmi_sph
 from rmi_learn.control_bench.feedback.clusters import summarise_cell
+from rmi_learn.control_bench.feedback.estimators import WINDOW
 from rmi_learn.control_bench.feedback.fitting import Fits, fit_size, run_rows
 from rmi_learn.control_bench.feedback.held_out import (
     RunInfo,
@@ -39,6 +42,7 @@ from rmi_learn.control_bench.feedback.protocol import CONTROLLERS, Protocol, loa
 from rmi_learn.control_bench.feedback.release import PROBE_SCHEMA, SETTLE_CONTROLLER, fit_settle
 from rmi_learn.control_bench.feedback.report import markdown
 from rmi_learn.control_bench.feedback.settle_planner import PLANNERS, fit_plan
+from rmi_learn.control_bench.feedback.start_states import STATES_DIR, Replay
 from rmi_learn.control_bench.feedback.worker import RunJob, probe_job, run_job
 from rmi_learn.data.checkpoint_rows import read_rows, write_rows
 from rmi_learn.data.output_lock import output_lock
@@ -154,6 +158,19 @@ def _run_jobs(
     return rows
 
 
+def _replay(p: Protocol, run_id: str, ticks: Sequence[StartTick], folder: Path) -> Replay:
+    """One replay of the run for every phase: all its start ticks, and the logged setpoints
+    past them when a test state's scripted controller repeats them."""
+    mine = [t for t in ticks if t.run_id == run_id]
+    scripted = "scripted" in p["controllers"] and any(t.role == "test" for t in mine)
+    return Replay(
+        tuple(sorted({t.tick for t in mine})),
+        int(p["horizon"]) if scripted else 0,
+        WINDOW + p.sensors.latency_ticks,
+        folder,
+    )
+
+
 def _jobs(
     p: Protocol,
     runs: Sequence[RunInfo],
@@ -163,6 +180,7 @@ def _jobs(
     gains: dict[int, dict[str, dict[str, tuple[float, float]]]],
     done: set[str],
     threads: int,
+    out: Path,
 ) -> list[RunJob]:
     by_run: dict[str, list[tuple[int, str]]] = {}
     for t in ticks:
@@ -180,7 +198,8 @@ def _jobs(
             g: dict[str, tuple[float, float]] = {}
         else:
             mine, g = {own: fits[r.size_cm][own]}, gains[r.size_cm][own]
-        jobs.append(RunJob(r, tt, p.raw, p.sensors, mine, g, threads))
+        replay = _replay(p, rid, ticks, out / STATES_DIR)
+        jobs.append(RunJob(r, tt, p.raw, p.sensors, mine, replay, g, threads))
     return jobs
 
 
@@ -204,7 +223,7 @@ def _release_probes(
         write_rows(path, rows, PROBE_SCHEMA, {DIGEST_KEY: p.digest, "rmi.protocol.name": p["name"]})
 
     probed = {r["run_id"] for r in done}
-    jobs = _jobs(p, infos, ticks, "tuning", fits, {}, probed, threads)
+    jobs = _jobs(p, infos, ticks, "tuning", fits, {}, probed, threads, out)
     rows = _run_jobs(jobs, workers, done, save, log, "release probes", probe_job)
     for size, by_fold in fits.items():
         for fold, f in by_fold.items():
@@ -312,12 +331,14 @@ def run_protocol_bench(
 
         pis = [c for c in p["controllers"] if c.startswith("pi-")]
         tuned = {r["run_id"] for r in done if r["role"] == "tuning"}
-        jobs = _jobs(p, infos, ticks, "tuning", fits, {}, tuned, threads)
+        jobs = _jobs(p, infos, ticks, "tuning", fits, {}, tuned, threads, out_p)
         rows = _run_jobs(jobs, workers, done, save, say, "tuning")
         gains = choose_gains(rows, pis, {s: list(f) for s, f in fits.items()})
         tested = {r["run_id"] for r in rows if r["role"] == "test"}
-        jobs = _jobs(p, infos, ticks, "test", fits, gains, tested, threads)
+        jobs = _jobs(p, infos, ticks, "test", fits, gains, tested, threads, out_p)
         rows = _run_jobs(jobs, workers, rows, save, say, "test")
+        # Every row is kept: the start states have served their phases.
+        shutil.rmtree(out_p / STATES_DIR, ignore_errors=True)
         size_of = {r.run_id: r.size_cm for r in infos}
         result = {
             "protocol": p.raw,

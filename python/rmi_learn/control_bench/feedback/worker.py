@@ -9,10 +9,8 @@ from typing import Any
 
 import numpy as np
 
-import rmi_sph
 from rmi_learn.control_bench.feedback.episode import Controller, Episode, Plant, run_episode
 from rmi_learn.control_bench.feedback.estimators import (
-    WINDOW,
     Estimator,
     LearnedEstimate,
     PrivilegedEstimate,
@@ -32,62 +30,27 @@ from rmi_learn.control_bench.feedback.settle_planner import (
     PLANNERS,
     SettlePlanner,
 )
+from rmi_learn.control_bench.feedback.start_states import Replay, Snapshot, start_states
 from rmi_learn.data.schema import FORCE_LIMIT_N
 from rmi_learn.sensing import SensorModel, dry_mass
 from rmi_learn.sim.execute import clip_force
 
 
 @dataclass
-class Snapshot:
-    """A start state: its bytes, the true records of the control steps up to it, and the
-    logged controller's next setpoints (N)."""
-
-    tick: int
-    state: bytes
-    history: list[dict[str, Any]]
-    scripted: list[float]
-
-
-@dataclass
 class RunJob:
     """What one run's worker needs: the run, its start ticks and roles, the protocol's
     settings, the fits of each fold its states serve (tuning: every other group's fold;
-    test: its own) and, for test states, its fold's tuned gains per estimator."""
+    test: its own), for test states, its fold's tuned gains per estimator, and the replay
+    that gives its start states."""
 
     run: RunInfo
     ticks: list[tuple[int, str]]
     protocol: dict[str, Any]
     sensors: SensorModel
     fits: dict[str, Fits]
+    replay: Replay
     gains: dict[str, tuple[float, float]] = field(default_factory=dict)
     threads: int = 1
-
-
-def replay(
-    run: RunInfo, ticks: list[int], horizon: int, history: int, threads: int
-) -> tuple[Any, list[Snapshot]]:
-    """Step the run's own trial tick by tick and keep each start tick's state; returns the
-    trial too, which the episodes restore their states into."""
-    sim = rmi_sph.Trial(run.config, num_threads=threads)
-    n = substeps_of(run)
-    records: list[dict[str, Any]] = [sim.take_record()]
-    pending = sorted(ticks)
-    snaps: dict[int, tuple[bytes, list[dict[str, Any]]]] = {}
-    end = pending[-1] + horizon
-    for k in range(1, end + 1):
-        sim.step(n)
-        records.append(sim.take_record())
-        if k in pending:
-            snaps[k] = (sim.get_state(), records[max(0, k + 1 - history) : k + 1])
-    return sim, [
-        Snapshot(
-            k,
-            snaps[k][0],
-            snaps[k][1],
-            [float(r["F_target"]) for r in records[k + 1 : k + 1 + horizon]],
-        )
-        for k in pending
-    ]
 
 
 def _key(job: RunJob, tick: int, task: int) -> tuple[int, ...]:
@@ -165,9 +128,9 @@ class StateWork:
         )
         return self.run(law, name != "pi-privileged", settle, task)
 
-    def plan(self, name: str, fits: Fits, goal: float, task: int) -> Episode:
-        """``mpc-settle`` or ``model-constant`` toward the settled goal ``goal`` (kg), the
-        settle included."""
+    def plan(self, name: str, fits: Fits, goal: float, task: int, settle: bool) -> Episode:
+        """``mpc-settle`` or ``model-constant`` toward the goal ``goal`` (kg) of the water
+        after the settle (its plans assume one), the settle executed if asked."""
         assert fits.plan is not None
         spec = self.job.protocol["settle_model"]
         replan = self.horizon if name == CONSTANT_CONTROLLER else int(spec["replan_ticks"])
@@ -182,7 +145,7 @@ class StateWork:
             int(spec["candidates"]),
             replan,
         )
-        return self.run(law, True, True, task)
+        return self.run(law, True, settle, task)
 
 
 def _row(
@@ -313,18 +276,19 @@ def test_rows(work: StateWork, role: str) -> list[dict[str, Any]]:
         fits = job.fits[fold_of(job.run)]
         for name in (c for c in ctrls if c.startswith("pi-")):
             ki, kp = job.gains[name]
-            e = work.pi(name, fits, goal, (ki, kp), True, ti)
+            e = work.pi(name, fits, goal, (ki, kp), task == "settle", ti)
             rows.append(_row(job, snap, role, task, goal, name, e, ki=ki, kp=kp))
         for name in (c for c in ctrls if c in PLANNERS):
-            rows.append(_row(job, snap, role, task, goal, name, work.plan(name, fits, goal, ti)))
+            e = work.plan(name, fits, goal, ti, task == "settle")
+            rows.append(_row(job, snap, role, task, goal, name, e))
     return rows
 
 
 def _states(job: RunJob) -> list[StateWork]:
-    """Replay the run to its start ticks; one :class:`StateWork` per tick."""
+    """The run's start states (replayed, or kept by an earlier phase); one
+    :class:`StateWork` per tick."""
     p = job.protocol
-    history = WINDOW + job.sensors.latency_ticks
-    sim, snaps = replay(job.run, [k for k, _ in job.ticks], int(p["horizon"]), history, job.threads)
+    sim, snaps = start_states(job.run, job.replay, [k for k, _ in job.ticks], job.threads)
     m_dry = dry_mass(sim)
     lo = clip_force(float(p["setpoint_low_fraction"]) * job.run.F_hold)
     plant = Plant(sim, substeps_of(job.run), lo, FORCE_LIMIT_N, job.run.F_hold)
@@ -348,4 +312,4 @@ def probe_job(job: RunJob) -> list[dict[str, Any]]:
     return [row for work in _states(job) for row in probe_rows(work, path)]
 
 
-__all__ = ["RunJob", "Snapshot", "probe_job", "replay", "run_job"]
+__all__ = ["RunJob", "StateWork", "probe_job", "run_job"]
