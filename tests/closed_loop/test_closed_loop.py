@@ -62,10 +62,10 @@ def sweep_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
-def _run(sweep: Path) -> tuple[str, Path, RunTrack]:
-    index = pl.read_parquet(sweep / "index.parquet")
-    path = sweep / index["path"][0]
-    return str(index["run_id"][0]), path, load_track(path)
+def _run(sweep: Path, i: int = 0) -> tuple[str, Path, RunTrack]:
+    index = pl.read_parquet(sweep / "index.parquet").sort("run_id")
+    path = sweep / index["path"][i]
+    return str(index["run_id"][i]), path, load_track(path)
 
 
 def write_chunks(
@@ -77,9 +77,27 @@ def write_chunks(
     nan_selected: Sequence[int] = (),
     goal_shift_kg: float = 0.0,
     run_id: str | None = None,
+    runs: Sequence[int] = (0,),
 ) -> Path:
-    """Write ``chunks_<objective>.npz`` as ``rmi rank`` does (float32 physical units)."""
-    rid, _, track = _run(sweep)
+    """Write ``chunks_<objective>.npz`` as ``rmi rank`` does (float32 physical units), the
+    windows at ``anchors`` of each of the sweep's ``runs`` (by position in run-id order)."""
+    parts = [_chunks(sweep, anchors, h, nan_selected, goal_shift_kg, run_id, i) for i in runs]
+    out.mkdir(parents=True, exist_ok=True)
+    merged = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    np.savez_compressed(out / f"chunks_{objective}.npz", **merged)
+    return out
+
+
+def _chunks(
+    sweep: Path,
+    anchors: Sequence[int],
+    h: int,
+    nan_selected: Sequence[int],
+    goal_shift_kg: float,
+    run_id: str | None,
+    i: int,
+) -> dict[str, np.ndarray]:
+    rid, _, track = _run(sweep, i)
     ts = np.asarray(anchors, dtype=np.int64)
     n = ts.size
     orig = np.stack([track.actions[t : t + h, :1] for t in ts]).astype(np.float32)
@@ -89,11 +107,9 @@ def write_chunks(
     for i in nan_selected:
         selected[i, 5, 0] = np.nan
     j_m = np.tile(np.arange(8, dtype=np.float32) + 0.5, (n, 1))
-    out.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(
-        out / f"chunks_{objective}.npz",
+    return dict(
         size_cm=np.full(n, PARAMS["size_cm"], dtype=np.int64),
-        run=np.zeros(n, dtype=np.int64),
+        run=np.full(n, i, dtype=np.int64),
         t=ts,
         goal_kg=np.asarray([track.water[t + h] + goal_shift_kg for t in ts], dtype=np.float32),
         water_now_kg=np.asarray([track.water[t] for t in ts], dtype=np.float32),
@@ -105,7 +121,6 @@ def write_chunks(
         J_M_samples=j_m,
         run_id=np.asarray([run_id or rid] * n),
     )
-    return out
 
 
 def _no_nan_json(path: Path) -> Any:
@@ -215,6 +230,22 @@ def test_executes_chunks_and_reproduces_the_original(sweep_dir: Path, tmp_path: 
     assert s2["scorer_name"] == "AC-GRU-WM"
     md = (out / "table_closed_loop.md").read_text()
     assert "| Flow matching + AC-GRU-WM |" in md and "W_T" not in md
+
+
+def test_runs_side_by_side_give_the_rows_of_one_run_at_a_time(
+    sweep_dir: Path, tmp_path: Path
+) -> None:
+    """With two threads and two runs, the runs go to two processes of one engine thread."""
+    two = tmp_path / "sweep"
+    shutil.copytree(sweep_dir, two)
+    spec = RunSpec({**PARAMS, "seed": 1}, 0.01, dict(OVERRIDES))
+    assert run_sweep([spec], two, workers=0, progress=False).ok == 1
+    chunks = write_chunks(tmp_path / "rank", two, anchors=ANCHORS[:2], h=8, runs=(0, 1))
+    one = run_closed_loop(two, chunks, tmp_path / "one", max_windows=0, threads=1, progress=False)
+    side = run_closed_loop(two, chunks, tmp_path / "two", max_windows=0, threads=2, progress=False)
+    assert one["windows_executed_now"] == side["windows_executed_now"] == 4
+    assert _numbers(tmp_path / "two").equals(_numbers(tmp_path / "one"))
+    assert _numbers(tmp_path / "two")["run_id"].n_unique() == 2
 
 
 def test_repeatable_and_resumes_without_redoing_windows(sweep_dir: Path, tmp_path: Path) -> None:

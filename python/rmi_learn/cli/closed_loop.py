@@ -38,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="windows per sponge size, evenly spaced (0: all)",
     )
-    add_threads(parser, "the engine")
+    add_threads(parser, "the engine (with several runs, that many runs at a time on one each)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 

@@ -1,14 +1,17 @@
 """The closed-loop driver (``rmi closed-loop``): check the inputs, replay every run to its
-windows' anchors, execute their chunks with a checkpoint after every window, and write the
-tables. See :mod:`rmi_learn.closed_loop`."""
+windows' anchors, execute their chunks (runs side by side when there are threads for it) with
+a checkpoint after every window or run, and write the tables. See
+:mod:`rmi_learn.closed_loop`."""
 
 from __future__ import annotations
 
 import hashlib
 import json
+import multiprocessing
 import os
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -161,12 +164,11 @@ def _execute_run(
     run_windows: Sequence[Window],
     inputs: Inputs,
     command: str,
-    ckpt: Checkpoint,
-    bar: Any,
+    keep: Callable[[Window, list[dict[str, Any]]], None],
 ) -> None:
     """Replay one run through its windows in time order, executing each window's chunks
-    from its anchor, with a checkpoint after every window. A failed replay fails the rest
-    of the run's windows too."""
+    from its anchor, and ``keep`` each window's rows. A failed replay fails the rest of the
+    run's windows too."""
     h = inputs.h
     with as_closed_loop_error():
         substeps = control_substeps(float(sim.dt))
@@ -195,17 +197,32 @@ def _execute_run(
             new = window_rows(
                 sim, state, track, w, inputs.chunks, h, substeps, command, replay_wall
             )
-        ckpt.rows.extend(new)
-        ckpt.save()
-        bar.set_postfix_str(f"{w.run_id} t={w.t}", refresh=False)
-        bar.update(1)
+        keep(w, new)
         if error is not None:
             # The autonomous trajectory of this run is lost: its later windows fail too.
             for rest in run_windows[run_windows.index(w) + 1 :]:
-                ckpt.rows.extend(failed_rows(track, rest, h, command, error, 0.0))
-                ckpt.save()
-                bar.update(1)
+                keep(rest, failed_rows(track, rest, h, command, error, 0.0))
             break
+
+
+@dataclass(frozen=True)
+class _RunJob:
+    """One run's windows for a worker process: its track, config and windows, the inputs
+    (chunks) and the command mode."""
+
+    track: RunTrack
+    config: dict[str, Any]
+    windows: list[Window]
+    inputs: Inputs
+    command: str
+
+
+def _run_job(job: _RunJob) -> list[dict[str, Any]]:
+    """The rows of one run's windows, on one engine thread (in a worker process)."""
+    rows: list[dict[str, Any]] = []
+    sim = rmi_sph.Trial(job.config, num_threads=1)
+    _execute_run(sim, job.track, job.windows, job.inputs, job.command, lambda w, r: rows.extend(r))
+    return rows
 
 
 def _execute(
@@ -216,7 +233,11 @@ def _execute(
     ckpt: Checkpoint,
     progress: bool,
 ) -> float:
-    """Execute every pending window; returns the wall time (s)."""
+    """Execute every pending window; returns the wall time (s). With ``threads`` > 1 and
+    several runs, the runs go to ``threads`` processes of one engine thread each (the rows
+    are the same: the engine's results do not depend on its threads), each run's rows
+    checkpointed when it ends; else one run at a time on ``threads`` threads, checkpointed
+    after every window."""
     by_run, tracks, configs = _prepare_runs(pending, inputs)
     windows = inputs.windows
     bar = tqdm(
@@ -228,11 +249,28 @@ def _execute(
         dynamic_ncols=True,
     )
     t_start = time.perf_counter()
+
+    def keep(w: Window, rows: list[dict[str, Any]]) -> None:
+        ckpt.rows.extend(rows)
+        ckpt.save()
+        bar.set_postfix_str(f"{w.run_id} t={w.t}", refresh=False)
+        bar.update(1)
+
+    runs = sorted(by_run)
+    ordered = {rid: sorted(by_run[rid], key=lambda w: w.t) for rid in runs}
     try:
-        for rid in sorted(by_run):
-            run_windows = sorted(by_run[rid], key=lambda w: w.t)
-            sim = rmi_sph.Trial(configs[rid], num_threads=threads)
-            _execute_run(sim, tracks[rid], run_windows, inputs, command, ckpt, bar)
+        if threads > 1 and len(runs) > 1:
+            jobs = [_RunJob(tracks[r], configs[r], ordered[r], inputs, command) for r in runs]
+            ctx = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(min(threads, len(runs)), mp_context=ctx) as pool:
+                for job, rows in zip(jobs, pool.map(_run_job, jobs), strict=True):
+                    ckpt.rows.extend(rows)
+                    ckpt.save()
+                    bar.update(len(job.windows))
+        else:
+            for rid in runs:
+                sim = rmi_sph.Trial(configs[rid], num_threads=threads)
+                _execute_run(sim, tracks[rid], ordered[rid], inputs, command, keep)
     finally:
         bar.close()
     return time.perf_counter() - t_start
@@ -309,7 +347,8 @@ def run_closed_loop(
     to ``out_dir`` (see :mod:`rmi_learn.closed_loop`).
 
     ``max_windows``: windows per sponge size, evenly spaced (0: every ranked window).
-    ``threads``: engine threads per simulation (results do not depend on it). ``command``:
+    ``threads``: the engine threads in all (several runs: that many runs at a time, one thread
+    each; results do not depend on it). ``command``:
     ``force`` (F_target, engine force regulation), the only mode.
     Windows already in ``out_dir/closed_loop_windows.parquet`` are not executed again.
     Returns the summary written to ``table_closed_loop.json``. Raises

@@ -150,7 +150,11 @@ def world_model_calls(models: Mapping[str, ModelRun], w: StageContext) -> list[C
             ),
             torch=True,
         )
-        for name, run in w.replicated(models).items()
+        # W_T trains several times longer than any other model: first, so that the others
+        # share the remaining workers while it runs.
+        for name, run in sorted(
+            w.replicated(models).items(), key=lambda m: m[1].model != "transformer"
+        )
     ]
 
 
