@@ -419,6 +419,7 @@ def test_every_stage_runs_its_library_call_with_the_arguments_it_records(
         "out": t / "control_protocol",
         "workers": 2,
         "threads": 1,
+        "replace_other": True,
     }
     assert by_name["write_report"][1:] == ((t,), {})
     # The markers record the command lines of those calls.
@@ -430,7 +431,7 @@ def test_every_stage_runs_its_library_call_with_the_arguments_it_records(
     ]
     assert markers["control-protocol"]["commands"] == [
         f"rmi control-bench --protocol tiny --runs {t / 'sweep'} "
-        f"--out {t / 'control_protocol'} --workers 2 --threads 1"
+        f"--out {t / 'control_protocol'} --workers 2 --threads 1 --replace-other"
     ]
 
 

@@ -82,6 +82,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--workers", type=count(1), default=1, help="processes sharing the runs (--protocol only)"
     )
+    parser.add_argument(
+        "--replace-other",
+        action="store_true",
+        help="(--protocol only) move an output of another protocol in --out to "
+        "DIR.<protocol>-<digest> and start over (default: refuse it)",
+    )
     # (option, lowest value, default, help) of the integer options.
     counts = (
         ("--states-per-size", 1, 4, "distinct start states per size (a larger N extends a run)"),
@@ -204,6 +210,7 @@ def _run_protocol(args: argparse.Namespace) -> int:
         args.workers,
         threads_of(args.threads),
         log=lambda msg: print(msg, file=sys.stderr),
+        replace_other=args.replace_other,
     )
     brief = {
         "out": str(args.out),
@@ -226,6 +233,8 @@ def run(args: argparse.Namespace) -> int:
         return _run_protocol(args)
     from rmi_learn.errors import InputError
 
+    if args.replace_other:
+        raise InputError("--replace-other applies with --protocol only")
     for name in ("data", "wm", "policy"):
         if getattr(args, name) is None:
             raise InputError(f"--{name} is required (or give --protocol)")

@@ -248,6 +248,9 @@ def protocol_calls(w: StageContext) -> list[Call]:
         keyword("workers", w.cfg.sweep.workers or 1),
         keyword("threads", 1),
         call_only("log", _log),
+        # The stage owns its folder: after a protocol's new version (a code update) it starts
+        # over and keeps the old output beside it.
+        keyword("replace_other", True),
     ]
     return [call("control-bench", run_protocol_bench, args)]
 

@@ -1,6 +1,7 @@
 """The benchmark's protocol file (control_bench.feedback.protocol): the shipped protocols are
 valid, every field is checked with one line naming it, its digest follows its content, and a
-run that differs from the protocol an output was written under is refused."""
+run that differs from the protocol an output was written under is refused, or moved aside when
+asked."""
 
 from __future__ import annotations
 
@@ -14,9 +15,11 @@ import pytest
 from rmi_learn.cli import main
 from rmi_learn.control_bench.feedback.driver import (
     DIGEST_KEY,
+    ROWS_FILE,
     SCHEMA,
     _load_done,
     run_protocol_bench,
+    set_aside,
 )
 from rmi_learn.control_bench.feedback.protocol import PROTOCOL_DIR, load_protocol, validate
 from rmi_learn.data.checkpoint_rows import write_rows
@@ -77,6 +80,23 @@ def test_an_output_of_another_protocol_is_refused(tmp_path: Path, raw: dict) -> 
     assert _load_done(rows, "0" * 64) == []
 
 
+def test_an_output_of_another_protocol_is_moved_aside_when_asked(tmp_path: Path, raw: dict) -> None:
+    out = tmp_path / "out"
+    meta = {DIGEST_KEY: "ab" * 32, "rmi.protocol.name": "tiny-v0"}
+    write_rows(out / ROWS_FILE, [], SCHEMA, meta)
+    (out / "table_protocol.md").write_text("old")
+    said: list[str] = []
+    dest = tmp_path / f"out.tiny-v0-{'ab' * 6}"
+    assert set_aside(out, validate(raw).digest, said.append) == dest
+    assert dest.is_dir() and (dest / "table_protocol.md").read_text() == "old"
+    assert (dest / ROWS_FILE).exists() and not (out / ROWS_FILE).exists()
+    assert said == [f"{out} held the output of protocol tiny-v0-{'ab' * 6}: moved to {dest}"]
+    # An output of this protocol stays where it is.
+    write_rows(out / ROWS_FILE, [], SCHEMA, {DIGEST_KEY: validate(raw).digest})
+    assert set_aside(out, validate(raw).digest, said.append) is None
+    assert (out / ROWS_FILE).exists() and len(said) == 1
+
+
 def test_a_sweep_of_another_grid_is_refused(tmp_path: Path) -> None:
     (tmp_path / "sweep").mkdir()
     (tmp_path / "sweep" / "grid.json").write_text(json.dumps({"name": "quick"}))
@@ -103,6 +123,8 @@ def test_the_command_refuses_options_the_protocol_fixes(tmp_path: Path, capsys: 
     assert "--k does not apply with --protocol" in capsys.readouterr().err
     code = main(["control-bench", "--runs", str(tmp_path), "--out", str(tmp_path / "o")])
     assert code == 2 and "--data is required (or give --protocol)" in capsys.readouterr().err
+    code = main(["control-bench", "--runs", str(tmp_path), "--out", "o", "--replace-other"])
+    assert code == 2 and "--replace-other applies with --protocol only" in capsys.readouterr().err
     code = main(
         [
             "control-bench",

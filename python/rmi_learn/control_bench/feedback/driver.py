@@ -101,6 +101,34 @@ def _load_done(path: Path, digest: str) -> list[dict[str, Any]]:
     return df.to_dicts()
 
 
+#: The files of a benchmark output that belong to its protocol.
+OUTPUT_FILES = (ROWS_FILE, PROBES_FILE, "table_protocol.json", "table_protocol.md", STATES_DIR)
+
+
+def set_aside(out: Path, digest: str, say: Any) -> Path | None:
+    """When ``out`` holds rows written under another protocol than ``digest``'s, move its
+    protocol files to the sibling folder ``<out>.<their protocol>-<digest, 12 hex>`` (kept,
+    not removed) and return that folder; else None. An unreadable rows file stays and is
+    refused as before."""
+    for name in (ROWS_FILE, PROBES_FILE):
+        try:
+            meta, _ = read_rows(out / name)
+        except (OSError, pl.exceptions.PolarsError):
+            continue
+        old = str(meta.get(DIGEST_KEY))
+        if old == digest:
+            continue
+        label = f"{meta.get('rmi.protocol.name', 'protocol')}-{old[:12]}"
+        dest = out.parent / f"{out.name}.{label}"
+        dest.mkdir(exist_ok=True)
+        for f in OUTPUT_FILES:
+            if (out / f).exists():
+                shutil.move(out / f, dest / f)
+        say(f"{out} held the output of protocol {label}: moved to {dest}")
+        return dest
+    return None
+
+
 def _dry_masses(runs: Sequence[RunInfo], threads: int) -> dict[str, float]:
     cache: dict[tuple[Any, ...], float] = {}
     out = {}
@@ -297,12 +325,14 @@ def run_protocol_bench(
     workers: int = 1,
     threads: int = 1,
     log: Any = None,
+    replace_other: bool = False,
 ) -> dict[str, Any]:
     """Run the benchmark of ``protocol`` (a file or a shipped name) on the sweep ``runs`` (a
     sweep output directory) into ``out``, with ``workers`` processes of ``threads`` engine
     threads each (results do not depend on either); returns the summary written to
     ``out/table_protocol.json``; ``log`` (a callable of one line) hears of each finished
-    run."""
+    run. An output of another protocol in ``out`` is refused, or with ``replace_other``
+    moved aside (:func:`set_aside`) and the benchmark started over."""
     say = log or (lambda msg: None)
     p = load_protocol(protocol)
     runs_p, out_p = Path(runs), Path(out)
@@ -315,6 +345,8 @@ def run_protocol_bench(
         raise InputError("--workers and --threads must be at least 1")
     out_p.mkdir(parents=True, exist_ok=True)
     with output_lock(out_p, LOCK_NAME):
+        if replace_other:
+            set_aside(out_p, p.digest, say)
         sizes = set(p.raw.get("sizes_cm", [8, 10, 12]))
         infos = [r for r in read_runs(load_index(runs_p)) if r.size_cm in sizes]
         ticks = draw_states(infos, p["states"], int(p["horizon"]))
@@ -364,4 +396,4 @@ def run_protocol_bench(
     return result
 
 
-__all__ = ["ROWS_FILE", "choose_gains", "run_protocol_bench", "summary"]
+__all__ = ["ROWS_FILE", "choose_gains", "run_protocol_bench", "set_aside", "summary"]
