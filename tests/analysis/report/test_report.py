@@ -61,6 +61,22 @@ def test_report_puts_our_numbers_beside_the_papers(tmp_path: Path) -> None:
     assert 'class="paper"' in page.read_text()
 
 
+def test_a_ranking_by_another_scorer_is_named_and_its_claim_checked(tmp_path: Path) -> None:
+    rows = [
+        {"method": "Flow matching, first sample", "8": 2.0, "10": None, "12": None},
+        {"method": "Flow matching + AC-GRU-WM", "8": 0.75, "10": None, "12": None},
+    ]
+    t3 = {"rows": rows, "k": 8, "scorer_name": "AC-GRU-WM"}
+    _write(tmp_path / "tables" / "rank" / "table3_ranking.json", t3)
+    flow = {"first_real_g": 4.0, "selected_real_g": 2.0}
+    _write(tmp_path / "closed_loop" / "table_closed_loop.json", {"sizes": {"8": {"flow": flow}}})
+    md, _ = write_report(tmp_path)
+    text = md.read_text()
+    assert "### Table III: AC-GRU-WM-predicted terminal water error (g)" in text
+    assert "| Flow matching | holds: 0.38; executed 2.0 vs 4.0 g | – | – |" in text
+    assert "AC-GRU-WM-selected chunk" in text
+
+
 def test_report_shows_the_goal_reaching_benchmark_when_it_ran(tmp_path: Path) -> None:
     md, _ = write_report(tmp_path)
     assert "Goal-reaching control" not in md.read_text()  # a preset without the stage

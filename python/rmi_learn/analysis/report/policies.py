@@ -35,14 +35,16 @@ def section_policies(doc: Doc, out: Path, figs: Path, paper: dict[str, Any]) -> 
         + ", ".join(f"{s} cm {nw.get(str(s), 0)}" for s in SIZES)
         + f"; K = {t3.get('k', 8)} samples per window."
     )
-    doc.h(3, "Table III: W_T-predicted terminal water error (g)")
+    # Rankings written before the scorer was named in them were all W_T's.
+    scorer = str(t3.get("scorer_name", "W_T"))
+    doc.h(3, f"Table III: {scorer}-predicted terminal water error (g)")
     doc.table(
         ["method"] + [f"{s} cm" for s in SIZES],
         _rank_rows(t3, paper["table3_ranking"]),
         "Predicted by the scorer that selects the chunk, so biased toward it; the closed-loop "
         "section executes the chunks in the simulator.",
     )
-    _ranking_findings(doc, t3, read_json(out / "closed_loop" / "table_closed_loop.json"))
+    _ranking_findings(doc, t3, read_json(out / "closed_loop" / "table_closed_loop.json"), scorer)
     t5 = read_json(rank / "table5_imitation.json")
     doc.h(3, "Table V: force MAE and smoothness of one sample (N)")
     rows = []
@@ -58,23 +60,26 @@ def section_policies(doc: Doc, out: Path, figs: Path, paper: dict[str, Any]) -> 
     tS1 = read_json(rank / "tableS1_cost.json")
     doc.h(3, "Table S1: combined predicted cost J")
     doc.table(["action source"] + [f"{s} cm" for s in SIZES], _rank_rows(tS1, paper["tableS1"]))
-    rel = _ranking_figure(t3, read_json(out / "closed_loop" / "table_closed_loop.json"), figs)
+    cl = read_json(out / "closed_loop" / "table_closed_loop.json")
+    rel = _ranking_figure(t3, cl, figs, scorer)
     if rel:
         doc.img(
             rel,
-            "Terminal water error per size and action source: as W_T predicts it (left) and "
+            f"Terminal water error per size and action source: as {scorer} predicts it (left) and "
             "as the simulator realises it (right, closed loop)",
         )
 
 
-def _ranking_findings(doc: Doc, t3: dict[str, Any], cl: dict[str, Any] | None) -> None:
+def _ranking_findings(doc: Doc, t3: dict[str, Any], cl: dict[str, Any] | None, scorer: str) -> None:
     """The paper's ranking claim per policy and size: the selected chunk's predicted error
-    at most half the first sample's, and beside it what the simulator gives both."""
+    at most half the first sample's, and beside it what the simulator gives both; the rows
+    of Table III that ``scorer`` selected."""
     predicted = {r["method"]: r for r in t3.get("rows", [])}
-    executed = closed_loop_means(cl)
+    executed = closed_loop_means(cl, scorer)
     rows = []
     for name in ("Diffusion policy", "Flow matching"):
-        first, chosen = predicted.get(f"{name}, first sample"), predicted.get(f"{name} + W_T")
+        first = predicted.get(f"{name}, first sample")
+        chosen = predicted.get(f"{name} + {scorer}")
         if first is None or chosen is None:
             continue
         cells = []
@@ -85,7 +90,7 @@ def _ranking_findings(doc: Doc, t3: dict[str, Any], cl: dict[str, Any] | None) -
                 continue
             cell = f"{'holds' if c <= 0.5 * f else 'does not hold'}: {c / f:.2f}"
             ef = executed.get(f"{name}, first sample", {}).get(str(s))
-            ec = executed.get(f"{name} + W_T", {}).get(str(s))
+            ec = executed.get(f"{name} + {scorer}", {}).get(str(s))
             if ef is not None and ec is not None:
                 cell += f"; executed {ec:.1f} vs {ef:.1f} g"
             cells.append(cell)
@@ -95,15 +100,18 @@ def _ranking_findings(doc: Doc, t3: dict[str, Any], cl: dict[str, Any] | None) -
     doc.table(
         ["ranking halves the predicted error"] + [f"{s} cm" for s in SIZES],
         rows,
-        "Predicted error of the W_T-selected chunk over the first sample's (the paper's "
+        f"Predicted error of the {scorer}-selected chunk over the first sample's (the paper's "
         "claim: at most 0.5). Choosing the lowest prediction of K samples lowers the "
         "prediction by construction; the executed errors (closed loop, g, selected vs first "
         "sample) say whether the choice helps.",
     )
 
 
-def closed_loop_means(cl: dict[str, Any] | None) -> dict[str, dict[str, float]]:
-    """``{Table III label: {size: real error g}}`` from ``table_closed_loop.json``."""
+def closed_loop_means(
+    cl: dict[str, Any] | None, scorer: str = "W_T"
+) -> dict[str, dict[str, float]]:
+    """``{Table III label: {size: real error g}}`` from ``table_closed_loop.json``, the
+    selected chunks labelled by ``scorer``, the world model that selected them."""
     labels = {"diffusion": "Diffusion policy", "flow": "Flow matching"}
     out: dict[str, dict[str, float]] = {}
     for size, per in ((cl or {}).get("sizes") or {}).items():
@@ -113,20 +121,22 @@ def closed_loop_means(cl: dict[str, Any] | None) -> dict[str, dict[str, float]]:
         for obj, name in labels.items():
             o = per.get(obj) or {}
             cells[f"{name}, first sample"] = o.get("first_real_g")
-            cells[f"{name} + W_T"] = o.get("selected_real_g")
+            cells[f"{name} + {scorer}"] = o.get("selected_real_g")
         for label, v in cells.items():
             if isinstance(v, (int, float)):
                 out.setdefault(label, {})[str(size)] = float(v)
     return out
 
 
-def _ranking_figure(t3: dict[str, Any], cl: dict[str, Any] | None, figs: Path) -> str | None:
+def _ranking_figure(
+    t3: dict[str, Any], cl: dict[str, Any] | None, figs: Path, scorer: str
+) -> str | None:
     plt = headless_pyplot()
     rows = t3.get("rows", [])
     if not rows:
         return None
-    real = closed_loop_means(cl)
-    panels = [("predicted by W_T (Table III)", {r["method"]: r for r in rows})]
+    real = closed_loop_means(cl, scorer)
+    panels = [(f"predicted by {scorer} (Table III)", {r["method"]: r for r in rows})]
     if real:
         panels.append(("real, executed in the simulator", real))
     fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 3.8), squeeze=False)
