@@ -58,9 +58,12 @@ def test_another_replay_or_an_unreadable_file_is_replayed(tmp_path: Path) -> Non
     _, other = start_states(run, Replay((3, 6), 4, 3, tmp_path), [3, 6], 1)
     assert len(list(tmp_path.iterdir())) == 2
     assert [s.scripted for s in first] == [[], []] and all(len(s.scripted) == 4 for s in other)
-    for f in tmp_path.iterdir():
-        f.write_bytes(b"not a state")
+    files = sorted(tmp_path.iterdir())
+    files[0].write_bytes(b"not a state")
+    files[1].write_bytes(files[1].read_bytes()[:-40])  # a zip cut short
     _, read = start_states(run, Replay((3, 6), 0, 3, tmp_path), [3], 1)
     assert len(read) == 1 and _same(read[0], first[0])
+    _, read = start_states(run, Replay((3, 6), 4, 3, tmp_path), [6], 1)
+    assert len(read) == 1 and _same(read[0], other[1])
     fresh = rmi_sph.Trial(tiny_config(), num_threads=1)
     assert fresh.get_state() != read[0].state
