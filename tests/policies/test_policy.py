@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import math
 import re
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -360,3 +363,18 @@ def test_briefly_trained_policy_samples_beat_noise(
     mae = (sample - val["actions"]).abs().mean().item()
     noise_mae = (noise - val["actions"]).abs().mean().item()
     assert mae < 0.5 * noise_mae, (mae, noise_mae)
+
+
+def test_a_seed_gives_the_same_policy_in_another_process(
+    synthetic_dataset_dir: object, tmp_path: Path
+) -> None:
+    """torch seeds its global generator at random in each process: the UNet's initial
+    weights must come from the training seed, so two processes train the same policy."""
+    outs = [tmp_path / f"run{i}" for i in range(2)]
+    for out in outs:
+        cmd = [sys.executable, "-m", "rmi_learn.cli", "train-policy", "--objective", "flow",
+               "--data", str(synthetic_dataset_dir), "--out", str(out), "--debug",
+               "--epochs", "1", "--threads", "1", "--no-progress"]  # fmt: skip
+        subprocess.run(cmd, check=True, capture_output=True)
+    a, b = ((o / "model.safetensors").read_bytes() for o in outs)
+    assert a == b

@@ -80,10 +80,13 @@ def train_policy(
     from rmi_learn.data.dataset import load_dataset
     from rmi_learn.policies.checkpoint import make_objective, model_config
     from rmi_learn.policies.ema import EMA
-    from rmi_learn.trainer import fetch_batch
+    from rmi_learn.trainer import fetch_batch, seed_everything
 
     if tensorboard:
         require_tensorboard()
+    # The UNet's initial weights come from torch's global generator, which torch seeds at
+    # random in every process: seeded here, the same seed gives the same policy.
+    seed_everything(seed, deterministic)
     unet_cfg, model = _build_unet(horizon, channels)
     ds = load_dataset(data)
     train = ds.windows("train", size_cm, history=history, horizon=horizon)
