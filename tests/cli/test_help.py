@@ -14,8 +14,8 @@ from rmi_learn.cli import COMMANDS, build_parser, main
 #: default, required). The command line of commit b0496b8 defined them; since then
 #: ``--threads`` defaults to every core on every command (sweep gained it), simulate
 #: gained ``--quiet``, ``view`` was added, train-wm and train-policy gained
-#: ``--tensorboard`` and ``--config``, train-policy ``--wm``, and closed-loop lost
-#: ``--command``.
+#: ``--tensorboard`` and ``--config``, train-policy ``--wm``, closed-loop lost
+#: ``--command``, and control-bench gained ``--replace-other``.
 OPTIONS: dict[str, dict[str, tuple[str, bool]]] = {
     "analyze": {
         "--runs": ("None", True),
@@ -40,6 +40,7 @@ OPTIONS: dict[str, dict[str, tuple[str, bool]]] = {
         "--out": ("None", True),
         "--protocol": ("None", False),
         "--workers": ("1", False),
+        "--replace-other": ("False", False),
         "--states-per-size": ("4", False),
         "--goals-per-state": ("2", False),
         "--setpoints": ("5", False),
