@@ -7,11 +7,9 @@ from __future__ import annotations
 
 import hashlib
 import json
-import multiprocessing
 import os
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -45,6 +43,7 @@ from rmi_learn.data.output_lock import output_lock
 from rmi_learn.data.runs import atomic_write_bytes, atomic_write_json, json_safe
 from rmi_learn.data.schema import CONTROL_DT
 from rmi_learn.data.sweep import INDEX_FILE
+from rmi_learn.process_pool import ordered_map
 from rmi_learn.sim.replay import (
     RunTrack,
     anchor_step,
@@ -261,12 +260,11 @@ def _execute(
     try:
         if threads > 1 and len(runs) > 1:
             jobs = [_RunJob(tracks[r], configs[r], ordered[r], inputs, command) for r in runs]
-            ctx = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(min(threads, len(runs)), mp_context=ctx) as pool:
-                for job, rows in zip(jobs, pool.map(_run_job, jobs), strict=True):
-                    ckpt.rows.extend(rows)
-                    ckpt.save()
-                    bar.update(len(job.windows))
+            results = ordered_map(_run_job, jobs, min(threads, len(runs)))
+            for job, rows in zip(jobs, results, strict=True):
+                ckpt.rows.extend(rows)
+                ckpt.save()
+                bar.update(len(job.windows))
         else:
             for rid in runs:
                 sim = rmi_sph.Trial(configs[rid], num_threads=threads)

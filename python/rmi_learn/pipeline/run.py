@@ -7,11 +7,9 @@ processes of their own."""
 from __future__ import annotations
 
 import json
-import multiprocessing
 import os
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +18,7 @@ from rmi_learn.data.runs import atomic_write_json
 from rmi_learn.pipeline.calls import Call
 from rmi_learn.pipeline.config import PipelineConfig
 from rmi_learn.pipeline.stages import TRAINING_THREADS, Stage, build_stages
+from rmi_learn.process_pool import ordered_map
 
 STAGES_SUBDIR = "stages"
 
@@ -52,15 +51,7 @@ def _execute_training(call: Call) -> int:
 def parallel_map(fn: Callable[[Call], int], calls: Sequence[Call], workers: int) -> list[int]:
     """``fn`` of each call in a pool of ``workers`` spawned processes; the statuses in the
     calls' order. A bug in one call raises here once the calls already running have ended."""
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-        futures = [pool.submit(fn, c) for c in calls]
-        try:
-            return [f.result() for f in futures]
-        except BaseException:
-            for f in futures:
-                f.cancel()
-            raise
+    return list(ordered_map(fn, calls, workers))
 
 
 def _run_calls(stage: Stage, calls: list[Call], threads: int, say: Callable[[str], None]) -> None:

@@ -16,10 +16,8 @@ in ``OUT/start_states/`` for the later phases and are removed at the end.
 from __future__ import annotations
 
 import json
-import multiprocessing
 import shutil
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +46,7 @@ from rmi_learn.data.checkpoint_rows import read_rows, write_rows
 from rmi_learn.data.output_lock import output_lock
 from rmi_learn.data.runs import atomic_write_json
 from rmi_learn.errors import InputError
+from rmi_learn.process_pool import ordered_map
 from rmi_learn.sensing import dry_mass
 from rmi_learn.sim.replay import load_index
 
@@ -166,23 +165,10 @@ def _run_jobs(
     """Run ``work`` on ``jobs`` (in this process, or a pool of ``workers``), saving the rows
     after each."""
     rows = list(done)
-    if not jobs:
-        return rows
-    pool = None
-    if workers <= 1:
-        results: Any = map(work, jobs)
-    else:
-        ctx = multiprocessing.get_context("spawn")
-        pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
-        results = pool.map(work, jobs)
-    try:
-        for i, (job, res) in enumerate(zip(jobs, results, strict=True)):
-            rows += res
-            save(rows)
-            log(f"{what}: run {i + 1}/{len(jobs)} done ({job.run.run_id})")
-    finally:
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
+    for i, (job, res) in enumerate(zip(jobs, ordered_map(work, jobs, workers), strict=True)):
+        rows += res
+        save(rows)
+        log(f"{what}: run {i + 1}/{len(jobs)} done ({job.run.run_id})")
     return rows
 
 
