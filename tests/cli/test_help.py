@@ -189,6 +189,8 @@ OPTIONS: dict[str, dict[str, tuple[str, bool]]] = {
         "--size": ("None", False),
         "--state-groups": ("'ALL'", False),
         "--shuffle-actions": ("False", False),
+        "--observation-mode": ("'privileged'", False),
+        "--sensors": ("None", False),
         "--model-arg": ("[]", False),
         "--horizon": ("None", False),
         "--epochs": ("40", False),

@@ -2,7 +2,8 @@
 :mod:`rmi_learn.world_models.training`).
 
     rmi train-wm --model ac-gru --data DATASET --out RUN [--size 8|10|12]
-                 [--state-groups LS|LS+G|LS+G+C|ALL] [--shuffle-actions] [--epochs N]
+                 [--state-groups LS|LS+G|LS+G+C|ALL] [--shuffle-actions]
+                 [--observation-mode privileged|sensors] [--sensors JSON] [--epochs N]
                  [--water-weight W] [--huber-delta D] [--loss-scale state|change]
                  [--seed S] [--resume] [--debug] [--config FILE] [--tensorboard]
 
@@ -21,6 +22,7 @@ from rmi_learn.cli.threads import add_threads, threads_of
 from rmi_learn.data.schema import SPONGE_SIZES_CM
 from rmi_learn.errors import InputError
 from rmi_learn.option_types import count, device, positive, seed
+from rmi_learn.sensing import OBSERVATION_MODES, SensorModel
 from rmi_learn.world_models.training_settings import (
     GROUP_CHOICES,
     HUBER_DELTA,
@@ -53,6 +55,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--shuffle-actions",
         action="store_true",
         help="pair each history with an action chunk from another run",
+    )
+    parser.add_argument(
+        "--observation-mode",
+        default="privileged",
+        choices=OBSERVATION_MODES,
+        help="what the model's history holds: privileged (y_t) or sensors (what the "
+        "gripper's width, pad, tactile and wrist force/torque sensors report, with noise "
+        "and latency, and the dry sponge's mass; GRU models only); the forecast targets "
+        "are y_t's in either mode",
+    )
+    parser.add_argument(
+        "--sensors",
+        type=_sensor_model,
+        default=None,
+        metavar="JSON",
+        help="the sensors' noise and latency as a JSON object of SensorModel's fields, e.g. "
+        '\'{"wrist_N": 0.1, "latency_ticks": 2}\' (default: the defaults of '
+        "docs/control.md: wrist 0.06 N, pads 0.5 N, one control step of latency)",
     )
     parser.add_argument(
         "--model-arg",
@@ -179,9 +199,23 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         tensorboard=args.tensorboard,
         horizon=args.horizon,
+        observation_mode=args.observation_mode,
+        sensors=args.sensors,
     )
     print(json.dumps(summary, indent=2))
     return 0
+
+
+def _sensor_model(text: str) -> SensorModel:
+    """``--sensors``: a JSON object of :class:`~rmi_learn.sensing.SensorModel` fields."""
+    try:
+        fields = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"not a JSON object ({exc.msg})") from exc
+    try:
+        return SensorModel.from_mapping(fields)
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from exc
 
 
 def _parse_model_args(items: list[str]) -> dict[str, Any]:

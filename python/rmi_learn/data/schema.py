@@ -51,6 +51,11 @@ CONTROL_ACTION_INDEX: tuple[int, ...] = tuple(ACTIONS.index(a) for a in CONTROL_
 #: skeleton's centre-of-mass velocity (m/s), the lift gate, expelled water (kg), lift height (m).
 EXTRAS: tuple[str, ...] = tuple(rmi_sph.EXTRA_NAMES)
 
+#: The wrist load (N): the force of the sponge and what it carries on the gripper, as a
+#: force/torque sensor between wrist and fingers reads it; kept in a dataset's frames for
+#: the ``sensors`` observation mode, never part of y_t.
+WRIST: tuple[str, ...] = ("W_x", "W_y", "W_z")
+
 #: Controller phases in the order a trial visits them.
 PHASES: tuple[str, ...] = (
     "settle",

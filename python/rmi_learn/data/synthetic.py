@@ -372,6 +372,8 @@ def simulate_toy_run(
         "F_hold": F_hold,
         "F_squeeze": F_squeeze,
         "seed": seed,
+        # What the engine's own configs leave to the skeleton it builds (the dataset reads it).
+        "m_dry": _TOY_DRY_FRACTION * sponge.m0,
     }
     return {"columns": columns, "outcome": outcome, "config": config}
 

@@ -82,7 +82,7 @@ def _load_inputs(
     # or horizon is a one-line error, not a traceback after half the work.
     try:
         ds = load_dataset(data)
-        wm_net, wm_cfg = models.load(wm)
+        wm_net, wm_cfg = models.load(wm, observation_mode="privileged")
         loaded = {n: load_policy(p, weights, device) for n, p in policies.items()}
         for name, (net, _, _) in loaded.items():
             h = net.config.horizon

@@ -154,7 +154,7 @@ def load_realtime_planner(
     """
     try:
         net, objective, _ = load_policy(policy, weights)
-        wm_net, wm_cfg = models.load(wm)
+        wm_net, wm_cfg = models.load(wm, observation_mode="privileged")
     except (FileNotFoundError, NotADirectoryError, KeyError, TypeError, ValueError) as exc:
         raise InputError(exc) from exc
     cfg = net.config

@@ -20,6 +20,8 @@ def can_score(model: Any, horizon: int) -> str | None:
     """Why the world model ``model`` cannot rank chunks of ``horizon`` steps, or None."""
     if model.kind == "baseline" or not getattr(model, "action_conditioned", True):
         return "does not see the actions"
+    if getattr(model, "observation_mode", "privileged") != "privileged":
+        return "reads the sensors (the chunks are scored from y_t histories)"
     try:
         model.check_horizon_length(horizon)
     except ValueError as exc:

@@ -167,7 +167,7 @@ def check_world_model(
     statistics or action channels.
     """
     try:
-        net, cfg = models.load(Path(wm_dir))
+        net, cfg = models.load(Path(wm_dir), observation_mode="privileged")
     except (FileNotFoundError, NotADirectoryError, KeyError, TypeError, ValueError) as exc:
         raise InputError(f"world model {wm_dir}: {exc}") from exc
     try:

@@ -8,6 +8,10 @@ chunk to a forecast::
     out["contact_logit"]   # (N, H)     logit of c_{t+tau}
     out["friction_logit"]  # (N, H, 4)  logits over FRICTION_CLASSES
 
+A GRU model built with ``observation_mode="sensors"`` reads instead a history of what the
+gripper's sensors report, (N, L, 17) (``SENSOR_INPUTS``, mask all ones), estimates y_t from
+it and forecasts the same outputs.
+
 Recurrent decoders also accept ``teacher=batch`` and ``tf_prob`` (teacher forcing: at each step
 and per sample, with probability ``tf_prob``, the next decoder input is the ground truth
 instead of the model's own prediction). Use :meth:`WorldModel.predict` for inference
@@ -33,6 +37,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from rmi_learn.data.dataset.sensor_view import SENSOR_INPUTS
 from rmi_learn.data.schema import (
     CONTACT_INDEX,
     CONTINUOUS,
@@ -42,6 +47,10 @@ from rmi_learn.data.schema import (
     FRICTION_SLICE,
     OBS,
 )
+from rmi_learn.sensing import OBSERVATION_MODES
+
+#: The world models that can read the ``sensors`` observation mode.
+SENSOR_MODEL_KINDS: tuple[str, ...] = ("ac-gru", "state-gru")
 
 N_OBS = len(OBS)  # 23
 N_Z = len(CONTINUOUS)  # 18
@@ -156,8 +165,29 @@ class WorldModel(nn.Module):
     fixed_horizon: int | None = None
     max_horizon: int | None = None
 
-    def __init__(self, state_groups: str = "ALL") -> None:
+    #: Whether the model can read the ``sensors`` observation mode instead of y_t.
+    takes_sensors: bool = False
+
+    def __init__(self, state_groups: str = "ALL", observation_mode: str = "privileged") -> None:
         super().__init__()
+        if observation_mode not in OBSERVATION_MODES:
+            raise ValueError(
+                f"observation_mode must be one of {', '.join(OBSERVATION_MODES)}, "
+                f"got {observation_mode!r}"
+            )
+        if observation_mode == "sensors" and not self.takes_sensors:
+            raise ValueError(
+                f"{self.kind} reads y_t only; observation_mode 'sensors' is taken by "
+                f"{', '.join(SENSOR_MODEL_KINDS)}"
+            )
+        if observation_mode == "sensors" and state_groups != "ALL":
+            raise ValueError(
+                "state_groups must be ALL with observation_mode 'sensors' (the groups are "
+                f"y_t's), got {state_groups!r}"
+            )
+        self.observation_mode = observation_mode
+        #: Channels of a history row: y_t's 23 or the sensor mode's inputs.
+        self.n_inputs = N_OBS if observation_mode == "privileged" else len(SENSOR_INPUTS)
         self.state_groups = state_groups
         keep = obs_keep(state_groups)
         self.register_buffer("obs_keep", keep, persistent=False)
@@ -180,6 +210,8 @@ class WorldModel(nn.Module):
     def config(self) -> dict[str, Any]:
         """JSON that rebuilds this model with :func:`rmi_learn.world_models.build`."""
         cfg: dict[str, Any] = {"kind": self.kind, "state_groups": self.state_groups}
+        if self.observation_mode != "privileged":
+            cfg["observation_mode"] = self.observation_mode
         if not bool(torch.all(self.delta_scale == 1.0)):
             cfg["delta_scale"] = [float(v) for v in self.delta_scale]
         return cfg
@@ -202,7 +234,10 @@ class WorldModel(nn.Module):
     def prepare(
         self, hist: torch.Tensor, hist_mask: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Zero channels outside the model's state groups (value and mask)."""
+        """Zero channels outside the model's state groups (value and mask); a history of
+        the sensors passes as it is."""
+        if self.observation_mode == "sensors":
+            return hist, hist_mask
         return hist * self.obs_keep, hist_mask * self.obs_keep
 
     def check_horizon(self, actions: torch.Tensor) -> int:
@@ -320,8 +355,16 @@ def _masked_rms(
     return rms.clamp_min(floor).to(torch.float32)
 
 
+def _now(b: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Each window's true continuous state z_t, (N, 18): its ``z_now`` (a sensor-mode
+    history does not hold it), else the history's latest row."""
+    return b["z_now"] if "z_now" in b else last_z(b["hist"])
+
+
 def _latest_mask(b: dict[str, torch.Tensor]) -> torch.Tensor:
     """Validity of each window's latest continuous state, (N, 1, 18)."""
+    if "z_now_mask" in b:
+        return b["z_now_mask"].unsqueeze(1)
     return b["hist_mask"][:, -1, list(CONTINUOUS_INDEX)].unsqueeze(1)
 
 
@@ -336,7 +379,7 @@ def change_scale(ws: Any, batch_size: int = 1024, floor: float = 1e-3) -> torch.
     """
 
     def changes(b: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        d = (b["target"] - last_z(b["hist"]).unsqueeze(1)).to(torch.float64)
+        d = (b["target"] - _now(b).unsqueeze(1)).to(torch.float64)
         return d, (b["target_mask"] * _latest_mask(b)).to(torch.float64)
 
     return _masked_rms(ws, changes, batch_size, floor)
@@ -350,7 +393,7 @@ def step_scale(ws: Any, batch_size: int = 1024, floor: float = 1e-4) -> torch.Te
     (:meth:`WorldModel.set_delta_scale`)."""
 
     def changes(b: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        z = torch.cat([last_z(b["hist"]).unsqueeze(1), b["target"]], dim=1).to(torch.float64)
+        z = torch.cat([_now(b).unsqueeze(1), b["target"]], dim=1).to(torch.float64)
         m = torch.cat([_latest_mask(b), b["target_mask"]], dim=1).to(torch.float64)
         return z[:, 1:] - z[:, :-1], m[:, 1:] * m[:, :-1]
 

@@ -22,6 +22,7 @@ import torch
 from rmi_learn.data.dataset import Dataset, Stats, load_dataset
 from rmi_learn.data.schema import SPONGE_SIZES_CM
 from rmi_learn.errors import input_errors
+from rmi_learn.sensing import SensorModel
 from rmi_learn.trainer import RESUME_FREE, count_parameters
 from rmi_learn.world_models.baseline import BaselineWM, SetpointReadoutWM
 from rmi_learn.world_models.common import FORCE, N_FRIC, N_U, WATER, ShuffledActions
@@ -154,9 +155,10 @@ def latency_inputs(
     fixed = getattr(model, "fixed_horizon", None)
     h = fixed if fixed is not None else horizon
     n_hist = 1 if getattr(model, "shares_history", False) else n_chunks
+    c = int(getattr(model, "n_inputs", 23))
     return (
-        torch.randn(n_hist, history, 23),
-        torch.ones(n_hist, history, 23),
+        torch.randn(n_hist, history, c),
+        torch.ones(n_hist, history, c),
         torch.randn(n_chunks, h, N_U),
     )
 
@@ -254,6 +256,12 @@ TABLE2_ROWS: tuple[tuple[str, dict[str, Any]], ...] = (
     ("AC-GRU-WM, shuffled A", {"kind": "ac-gru", "state_groups": "ALL", "shuffled": True}),
     ("Transformer W_T", {"kind": "transformer", "state_groups": "ALL", "shuffled": False}),
 )
+#: Rows of the models that read the sensors instead of y_t (Table II's layout, toward the
+#: same targets), shown when such a run is evaluated.
+SENSOR_ROWS: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("State-GRU-WM (sensors)", {"kind": "state-gru", "observation_mode": "sensors"}),
+    ("AC-GRU-WM (sensors)", {"kind": "ac-gru", "observation_mode": "sensors"}),
+)
 TABLE3_ROWS: tuple[tuple[str, dict[str, Any]], ...] = (
     ("Linear-ARX", {"kind": "arx", "shuffled": False}),
     ("Linear-ARX, shuffled A", {"kind": "arx", "shuffled": True}),
@@ -310,10 +318,11 @@ def write_tables(results: list[dict[str, Any]], out_dir: str | Path) -> dict[str
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     steps = (MAIN_STEP,) + tuple(s for s in HORIZON_STEPS if s != MAIN_STEP)
+    sensing = any(r.get("observation_mode") == "sensors" for r in results)
     specs = {
         "table2": (
             "Table II: causal world-model prediction on the test split",
-            TABLE2_ROWS,
+            TABLE2_ROWS + (SENSOR_ROWS if sensing else ()),
             TABLE2_METRICS,
         ),
         "table3": (
@@ -350,6 +359,14 @@ def write_tables(results: list[dict[str, Any]], out_dir: str | Path) -> dict[str
             "evaluated with each history paired with a chunk from another run.",
             "",
         ]
+        if sensing and name == "table2":
+            md += [
+                "(sensors) rows read what the gripper's sensors report (width, pad loads, "
+                "tactile contact and shear, wrist load; noise and latency of each run's "
+                "`sensors` in results.json) and the dry sponge's mass instead of y_t, and "
+                "forecast the same y_t.",
+                "",
+            ]
         (out / f"{name}.md").write_text("\n".join(md), encoding="utf-8")
         (out / f"{name}.json").write_text(json.dumps(js, indent=2) + "\n", encoding="utf-8")
         paths[name] = out / f"{name}.md"
@@ -359,8 +376,9 @@ def write_tables(results: list[dict[str, Any]], out_dir: str | Path) -> dict[str
     return paths
 
 
-#: A cell of the tables: (model kind, state groups, shuffled actions, sponge size).
-CellKey = tuple[str, str, bool, int]
+#: A cell of the tables: (model kind, state groups, shuffled actions, sponge size,
+#: observation mode).
+CellKey = tuple[str, str, bool, int, str]
 #: A cell's choice: (trained on that size alone, its record, the member models, a config).
 Cell = tuple[bool, dict[str, Any], list[Any], dict[str, Any]]
 
@@ -448,8 +466,9 @@ def _add_to_cells(
     groups = cfg["model"].get("state_groups", "ALL")
     shuffled = bool(extra.get("shuffle_actions", False))
     trained_size = extra.get("size_cm")
+    mode = str(extra.get("observation_mode") or "privileged")
     for s in sizes if trained_size is None else [int(trained_size)]:
-        key = (kind, groups, shuffled, s)
+        key = (kind, groups, shuffled, s, mode)
         specific = trained_size is not None
         if key in chosen:
             old_specific, old_rec, members, old_cfg = chosen[key]
@@ -471,10 +490,14 @@ def _add_to_cells(
             if old_specific:
                 continue
         rec = {
-            "method": DISPLAY_NAMES[kind] + (", shuffled A" if shuffled else ""),
+            "method": DISPLAY_NAMES[kind]
+            + (", shuffled A" if shuffled else "")
+            + (" (sensors)" if mode == "sensors" else ""),
             "kind": kind,
             "state_groups": groups,
             "shuffled": shuffled,
+            "observation_mode": mode,
+            "sensors": extra.get("sensors"),
             "size_cm": s,
             "trained_size_cm": trained_size,
             "run_dir": run_dir,
@@ -502,8 +525,9 @@ def _evaluate_cells(
     its member runs (and theirs per seed) and, on the CPU, the first member's latency."""
     results = []
     latency_cache: dict[int, float] = {}
-    for (_, _, shuffled, s), (_, rec, members, _) in chosen.items():
-        ws: Any = ds.windows(split, size_cm=s)
+    for (_, _, shuffled, s, mode), (_, rec, members, _) in chosen.items():
+        sensors = SensorModel.from_mapping(rec["sensors"]) if mode == "sensors" else None
+        ws: Any = ds.windows(split, size_cm=s, observation_mode=mode, sensors=sensors)
         if len(ws) == 0:
             continue
         if shuffled:
@@ -570,4 +594,13 @@ def eval_wm(
             device=device,
             latency=latency,
         )
-    return write_tables(results, out)
+    paths = write_tables(results, out)
+    if any(r.get("observation_mode") == "sensors" for r in results):
+        from rmi_learn.world_models.sensor_table import evaluate_sensor_table, write_sensor_table
+
+        with input_errors(ValueError):
+            records = evaluate_sensor_table(
+                list(runs), data, split=split, batch_size=batch_size, max_windows=max_windows
+            )
+        paths.update(write_sensor_table(records, out))
+    return paths

@@ -35,9 +35,13 @@ COMPARISONS: tuple[tuple[str, dict[str, Any], dict[str, Any]], ...] = (
 
 def lookup(results: list[dict[str, Any]], **key: Any) -> dict[str, Any] | None:
     """The first record of ``results`` whose fields equal ``key`` (e.g. ``size_cm=8,
-    kind="baseline"``), or None."""
+    kind="baseline"``), or None. A record's observation mode is ``privileged`` unless it
+    says otherwise, and so is the key's: a model that reads the sensors is found only by
+    asking for it."""
+    key = {"observation_mode": "privileged", **key}
     for r in results:
-        if all(r.get(k) == v for k, v in key.items()):
+        rec = {"observation_mode": "privileged", **r}
+        if all(rec.get(k) == v for k, v in key.items()):
             return r
     return None
 

@@ -73,8 +73,10 @@ class GRUWorldModel(WorldModel):
     recurrent = True
     # Chunks scored for one history share its encoding: the encoder runs once per history.
     shares_history = True
-    #: Free rollouts of float32 CPU tensors run natively (see the module docstring).
+    #: Free rollouts of float32 CPU tensors run natively (see the module docstring); the
+    #: sensors mode's always in torch.
     native = True
+    takes_sensors = True
 
     def __init__(
         self,
@@ -83,12 +85,17 @@ class GRUWorldModel(WorldModel):
         layers: int = 2,
         u_embed: int = 64,
         state_groups: str = "ALL",
+        observation_mode: str = "privileged",
     ) -> None:
-        super().__init__(state_groups)
-        self.action_conditioned = action_conditioned
         self.kind = "ac-gru" if action_conditioned else "state-gru"
+        super().__init__(state_groups, observation_mode)
+        self.action_conditioned = action_conditioned
         self.hidden, self.layers, self.u_embed = hidden, layers, u_embed
-        self.encoder = nn.GRU(2 * N_OBS, hidden, layers, batch_first=True)
+        self.encoder = nn.GRU(2 * self.n_inputs, hidden, layers, batch_first=True)
+        if observation_mode == "sensors":
+            # No y_t to start from: the encoder's last state estimates it (the same three
+            # outputs as the head, the state itself rather than its change).
+            self.estimate = nn.Linear(hidden, N_Z + 1 + N_FRIC)
         d_in = 2 * N_OBS
         if action_conditioned:
             self.E_u = nn.Sequential(
@@ -136,8 +143,8 @@ class GRUWorldModel(WorldModel):
         keep = self.obs_keep
         _, h_enc = self.encoder(torch.cat([hist, hist_mask], dim=-1))
         h = list(h_enc.repeat_interleave(rep, dim=1).unbind(0))
-        y, m = hist[:, -1].repeat_interleave(rep, 0), hist_mask[:, -1].repeat_interleave(rep, 0)
-        z = last_z(hist).repeat_interleave(rep, 0)
+        y, m, z = self._start(hist, hist_mask, h_enc[-1])
+        y, m, z = (x.repeat_interleave(rep, 0) for x in (y, m, z))
         if teacher is None and not torch.is_grad_enabled():
             return self._rollout(actions, h, y, m, z)
         e = self.E_u(actions) if self.action_conditioned else None
@@ -178,6 +185,28 @@ class GRUWorldModel(WorldModel):
             "friction_logit": torch.stack(fs, 1),
         }
 
+    def _start(
+        self, hist: torch.Tensor, hist_mask: torch.Tensor, h_top: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The decoder's first input and the state its changes accumulate from, per history
+        (B, 23), (B, 23), (B, 18): the latest observation, its mask and z_t; in the sensors
+        mode the estimate of y_t from the encoder's top state ``h_top`` (B, hidden), marked
+        valid."""
+        if self.observation_mode == "privileged":
+            return hist[:, -1], hist_mask[:, -1], last_z(hist)
+        z0, c0, f0 = self.estimate(h_top).split((N_Z, 1, N_FRIC), dim=-1)
+        y0 = assemble_obs(z0, torch.sigmoid(c0[:, 0]), torch.softmax(f0, -1)) * self.obs_keep
+        return y0, self.obs_keep.expand_as(y0), z0
+
+    def estimate_state(self, hist: torch.Tensor, hist_mask: torch.Tensor) -> torch.Tensor:
+        """The standardised continuous state z_t (B, 18) the model starts its forecast from:
+        the history's latest row, or in the sensors mode its estimate."""
+        hist, hist_mask = self.prepare(hist, hist_mask)
+        if self.observation_mode == "privileged":
+            return last_z(hist)
+        _, h_enc = self.encoder(torch.cat([hist, hist_mask], dim=-1))
+        return self._start(hist, hist_mask, h_enc[-1])[2]
+
     def __getstate__(self) -> dict[str, Any]:
         # The native forecaster cannot be pickled or deep-copied; it is rebuilt on demand.
         state = self.__dict__.copy()
@@ -187,6 +216,7 @@ class GRUWorldModel(WorldModel):
     def _native_ok(self, *tensors: torch.Tensor) -> bool:
         return (
             self.native
+            and self.observation_mode == "privileged"
             and os.environ.get(NATIVE_ENV, "1") != "0"
             and all(t.device.type == "cpu" and t.dtype == torch.float32 for t in tensors)
             and _native_class() is not None

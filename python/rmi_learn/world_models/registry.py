@@ -53,14 +53,18 @@ def build(config: dict[str, Any]) -> WorldModel:
     return model
 
 
-def load(out_dir: str | Path, which: str = "model") -> tuple[WorldModel, dict[str, Any]]:
+def load(
+    out_dir: str | Path, which: str = "model", observation_mode: str | None = None
+) -> tuple[WorldModel, dict[str, Any]]:
     """Load a trained world model from a ``rmi train-wm`` output directory.
 
     Returns ``(model, config)``: the model in eval mode with the selected weights
     (``which="last"`` for the latest), and the run's config.json (``config["model"]`` is the
     architecture, ``config["extra"]["stats"]`` the standardisation statistics of the data
     it was trained on: z_mean, z_std (18, SI units), u_mean, u_std (2,)). Inputs to the model
-    are standardised exactly like ``rmi_learn.data.dataset`` windows.
+    are standardised exactly like ``rmi_learn.data.dataset`` windows. With
+    ``observation_mode``, a model that reads the other mode is an
+    :class:`~rmi_learn.errors.InputError` (the planners score chunks from y_t histories).
     """
     config = read_config(out_dir)
     try:
@@ -68,6 +72,11 @@ def load(out_dir: str | Path, which: str = "model") -> tuple[WorldModel, dict[st
     except (KeyError, TypeError, ValueError) as exc:
         # The architecture comes from a file: a field the constructor refuses is bad input.
         raise InputError(f"{Path(out_dir) / CONFIG_FILE}: cannot build its model: {exc}") from exc
+    if observation_mode is not None and model.observation_mode != observation_mode:
+        raise InputError(
+            f"{out_dir}: the world model reads observation_mode {model.observation_mode!r}; "
+            f"this takes a model trained with observation_mode {observation_mode!r}"
+        )
     load_weights(model, out_dir, which)
     model.eval()
     return model, config

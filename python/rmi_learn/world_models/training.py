@@ -27,6 +27,7 @@ from rmi_learn.metrics_log import (
     TensorBoardLog,
     require_tensorboard,
 )
+from rmi_learn.sensing import SensorModel, check_observation_mode
 from rmi_learn.world_models.training_settings import (
     DEBUG_TRAIN_WINDOWS,
     DEBUG_VAL_WINDOWS,
@@ -85,6 +86,8 @@ def train(
     model_args: dict[str, Any] | None = None,
     tensorboard: bool = False,
     horizon: int | None = None,
+    observation_mode: str = "privileged",
+    sensors: SensorModel | None = None,
 ) -> dict[str, Any]:
     """Train one world model into ``out`` and return the run summary (see module doc).
 
@@ -111,6 +114,11 @@ def train(
     metrics go to ``metrics.jsonl``, among them ``val_loss``: the training loss on the
     validation windows' free rollouts (no teacher forcing, the same weights and scale);
     ``tensorboard`` also writes them as TensorBoard events (needs ``tensorboard``).
+    ``observation_mode="sensors"`` trains on histories of what the gripper's sensors report
+    under ``sensors`` (default: :class:`~rmi_learn.sensing.SensorModel`'s defaults; see
+    :meth:`~rmi_learn.data.dataset.Dataset.windows`) toward the same y_t targets; the model
+    then estimates y_t from them (the GRU models only), and config.json records the mode
+    and the sensor model.
 
     Settings or data it cannot train on (an unknown model or constructor argument, no
     training windows, a resume with other settings) raise
@@ -120,19 +128,34 @@ def train(
     from rmi_learn.trainer import seed_everything
 
     _check_request(model, state_groups, loss_scale, tensorboard)
+    sensing = _sensing(model, state_groups, observation_mode, sensors)
     out = Path(out)
     ds = load_dataset(data)
     stats = ds.stats
     seed_everything(seed, deterministic)
-    net = _build_model(model, state_groups, model_args)
+    net = _build_model(model, state_groups, model_args, observation_mode)
     horizon = _window_horizon(net, model, horizon)
-    train_ws, val_ws = _window_sets(ds, data, size_cm, horizon, shuffle_actions, debug, seed)
+    train_ws, val_ws = _window_sets(
+        ds, data, size_cm, horizon, shuffle_actions, debug, seed, sensing
+    )
     if debug:
         tf_epochs = 1
         batch_size = min(batch_size, 8)
     extra = _extra_config(
         data, size_cm, state_groups, shuffle_actions, seed, debug, ds, train_ws, val_ws
     )
+    extra["observation_mode"] = observation_mode
+    extra["sensors"] = None if sensing is None else sensing.as_dict()
+    if sensing is not None:
+        from rmi_learn.data.dataset.sensor_view import SENSOR_INPUTS
+
+        view = ds.sensor_view(sensing)
+        # How the model's inputs are standardised, for a caller that feeds it online.
+        extra["sensor_stats"] = {
+            "names": list(SENSOR_INPUTS),
+            "mean": view.mean.tolist(),
+            "std": view.std.tolist(),
+        }
     if not net.trainable:
         validate = _validation(val_ws, stats.z_std, horizon, val_windows, device, None)
         return _closed_form(net, model, out, train_ws, validate, extra, resume, tensorboard)
@@ -182,14 +205,45 @@ def _check_request(
         raise ValueError(f"--state-groups applies to learned models, not {model}")
 
 
-def _build_model(model: str, state_groups: str, model_args: dict[str, Any] | None) -> Any:
+def _sensing(
+    model: str, state_groups: str, observation_mode: str, sensors: SensorModel | None
+) -> SensorModel | None:
+    """The sensor model of a sensor-mode training (None for y_t); ValueError naming the
+    field for a mode, model or state groups the sensors mode does not take."""
+    from rmi_learn.world_models.common import SENSOR_MODEL_KINDS
+
+    check_observation_mode(observation_mode)
+    if observation_mode == "privileged":
+        if sensors is not None:
+            raise ValueError("sensors applies to observation_mode 'sensors' only")
+        return None
+    if model not in SENSOR_MODEL_KINDS:
+        raise ValueError(
+            f"observation_mode 'sensors' is taken by {', '.join(SENSOR_MODEL_KINDS)}, "
+            f"not {model} (it reads y_t)"
+        )
+    if state_groups != "ALL":
+        raise ValueError(
+            f"state_groups must be ALL with observation_mode 'sensors', got {state_groups!r}"
+        )
+    return SensorModel() if sensors is None else sensors
+
+
+def _build_model(
+    model: str,
+    state_groups: str,
+    model_args: dict[str, Any] | None,
+    observation_mode: str = "privileged",
+) -> Any:
     """The untrained network of ``model`` with ``model_args`` and, for a learned model, its
-    state groups."""
+    state groups and (in the sensors mode) its observation mode."""
     from rmi_learn.world_models import build
 
     kw: dict[str, Any] = {"kind": model, **(model_args or {})}
     if model != "baseline" and model != "arx":
         kw["state_groups"] = state_groups
+    if observation_mode != "privileged":
+        kw["observation_mode"] = observation_mode
     return build(kw)
 
 
@@ -217,13 +271,17 @@ def _window_sets(
     shuffle_actions: bool,
     debug: bool,
     seed: int,
+    sensing: SensorModel | None = None,
 ) -> tuple[Any, Any]:
-    """The training and validation windows: with ``shuffle_actions`` each history paired
-    with another run's chunk, in debug mode a small subset of each."""
+    """The training and validation windows (histories of the sensors under ``sensing``,
+    else y_t): with ``shuffle_actions`` each history paired with another run's chunk, in
+    debug mode a small subset of each."""
     from rmi_learn.world_models.common import ShuffledActions
 
-    train_ws: Any = ds.windows("train", size_cm=size_cm, horizon=horizon)
-    val_ws: Any = ds.windows("val", size_cm=size_cm, horizon=horizon)
+    mode = "privileged" if sensing is None else "sensors"
+    kw: dict[str, Any] = {"horizon": horizon, "observation_mode": mode, "sensors": sensing}
+    train_ws: Any = ds.windows("train", size_cm=size_cm, **kw)
+    val_ws: Any = ds.windows("val", size_cm=size_cm, **kw)
     if len(train_ws) == 0:
         raise ValueError(f"no training windows in {data} (size {size_cm})")
     if shuffle_actions:

@@ -47,11 +47,19 @@ RESUME_FIXED = (
     "huber_delta",
     "loss_scale",
     "horizon",
+    "observation_mode",
+    "sensors",
 )
 #: Huber threshold of the loss in standardised units (torch's default).
 HUBER_DELTA = 1.0
 #: Values of those settings in runs written before they were recorded.
-RESUME_LEGACY: dict[str, Any] = {"huber_delta": HUBER_DELTA, "loss_scale": "state", "horizon": 64}
+RESUME_LEGACY: dict[str, Any] = {
+    "huber_delta": HUBER_DELTA,
+    "loss_scale": "state",
+    "horizon": 64,
+    "observation_mode": "privileged",
+    "sensors": None,
+}
 #: How the continuous channels' errors are scaled in the loss (see ``--loss-scale``).
 LOSS_SCALES = ("state", "change")
 #: Debug mode: windows kept from each split, batch size, teacher-forcing decay epochs.

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 from typing import Any
@@ -9,6 +10,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
+import rmi_sph
 from rmi_learn import __version__
 from rmi_learn.data import staging
 from rmi_learn.data.dataset.frames import resample_run, select_learning_rows
@@ -29,9 +31,11 @@ from rmi_learn.data.schema import (
     CONTROL_DT,
     LEARNING_PHASES,
     OBS,
+    WRIST,
     checked_seed,
 )
 from rmi_learn.errors import input_errors
+from rmi_learn.sensing.weight import dry_mass
 
 FORMAT_VERSION = 1
 
@@ -61,11 +65,38 @@ def _collect(run_dir: Path) -> tuple[list[dict[str, Any]], dict[str, int]]:
                 "run_id": run_id(params),
                 "path": path.relative_to(run_dir).as_posix(),
                 "params": {k: params[k] for k in PARAM_KEYS},
+                "config": meta["config"],
                 "rows": rows,
             }
         )
     kept.sort(key=lambda r: r["run_id"])
     return kept, counts
+
+
+_GRIP_KEYS = frozenset({"controller", "hold_force", "squeeze_force"})
+
+
+def _dry_masses(configs: list[dict[str, Any]]) -> list[float]:
+    """The dry sponge's mass (kg) of each run, for the ``sensors`` mode (what the robot
+    weighs before the task): the skeleton's as the engine builds it from the run's config, or
+    the config's own ``m_dry`` (a run file of another tool); NaN where neither is there."""
+    cache: dict[str, float] = {}
+    out = []
+    for config in configs:
+        given = config.get("m_dry")
+        if isinstance(given, int | float) and not isinstance(given, bool):
+            out.append(float(given))
+            continue
+        # The grip's settings do not change the skeleton the engine builds.
+        scene = {k: v for k, v in config.items() if k not in _GRIP_KEYS}
+        key = json.dumps(scene, sort_keys=True, default=str)
+        if key not in cache:
+            try:
+                cache[key] = dry_mass(rmi_sph.Trial(config, num_threads=1))
+            except (ValueError, TypeError, KeyError):
+                cache[key] = float("nan")
+        out.append(cache[key])
+    return out
 
 
 def build_dataset(
@@ -110,7 +141,7 @@ def build_dataset(
             "time": rows["time"],
             "phase": rows["phase"],
         }
-        cols.update({name: rows[name] for name in OBS + ACTIONS})
+        cols.update({name: rows[name] for name in OBS + ACTIONS + WRIST if name in rows})
         frames.append(pl.DataFrame(cols))
         seg_base += int(seg[-1]) + 1
         n_rows.append(n)
@@ -124,7 +155,8 @@ def build_dataset(
         pl.Series("split", split),
         pl.Series("n_rows", n_rows, dtype=pl.Int64),
         pl.Series("n_segments", n_segs, dtype=pl.Int64),
-    ).select("run", "run_id", *PARAM_KEYS, "split", "n_rows", "n_segments", "path")
+        pl.Series("m_dry", _dry_masses([r["config"] for r in kept]), dtype=pl.Float64),
+    ).select("run", "run_id", *PARAM_KEYS, "split", "n_rows", "n_segments", "m_dry", "path")
 
     train_runs = np.flatnonzero(np.asarray(split) == "train")
     if train_runs.size == 0:

@@ -13,6 +13,7 @@ from rmi_learn.data.schema import (
     CONTROL_DT,
     LEARNING_PHASES,
     OBS,
+    WRIST,
 )
 
 #: Categorical channels of y (held, never interpolated or standardised).
@@ -26,9 +27,10 @@ def resample_run(df: pl.DataFrame, dt: float = CONTROL_DT) -> dict[str, np.ndarr
     """Resample one run's rows to the global grid ``k * dt`` (s) inside its recorded span.
 
     Returns arrays keyed ``k`` (int64 grid index), ``time`` (= ``k * dt``), ``phase`` (str),
-    every name in OBS and ACTIONS. Continuous channels are linearly interpolated; a
-    value is NaN if either bracketing record is NaN (only ``v_res`` may be). Categorical
-    channels (c, r_*, phase) take the last record at or before the grid time.
+    every name in OBS and ACTIONS, and the wrist load (WRIST) where ``df`` has it.
+    Continuous channels are linearly interpolated; a value is NaN if either bracketing record
+    is NaN (only ``v_res`` may be). Categorical channels (c, r_*, phase) take the last record
+    at or before the grid time.
     """
     t = df["time"].to_numpy().astype(np.float64)
     if t.size == 0:
@@ -51,7 +53,7 @@ def resample_run(df: pl.DataFrame, dt: float = CONTROL_DT) -> dict[str, np.ndarr
 
     out: dict[str, np.ndarray] = {"k": k, "time": grid.copy()}
     out["phase"] = df["phase"].to_numpy().astype(str)[held]
-    for name in OBS + ACTIONS:
+    for name in OBS + ACTIONS + tuple(n for n in WRIST if n in df.columns):
         x = df[name].to_numpy().astype(np.float64)
         if name in CATEGORICAL:
             out[name] = x[held]

@@ -14,6 +14,7 @@ import polars as pl
 
 from rmi_learn.data.dataset.builder import FORMAT_VERSION
 from rmi_learn.data.dataset.frames import WATER_INDEX
+from rmi_learn.data.dataset.sensor_view import SensorView, sensor_view
 from rmi_learn.data.dataset.split import SPLITS
 from rmi_learn.data.dataset.stats import read_stats
 from rmi_learn.data.schema import (
@@ -25,6 +26,7 @@ from rmi_learn.data.schema import (
     OBS,
 )
 from rmi_learn.errors import InputError
+from rmi_learn.sensing import SensorModel, check_observation_mode
 
 try:  # torch is in the `learn` extra; a dataset opens without it; its windows need it.
     import torch
@@ -97,6 +99,17 @@ class Dataset:
         self.c = y[:, OBS.index("c")].astype(np.float32)
         onehot = y[:, FRICTION_SLICE]
         self.r_class = np.argmax(onehot, axis=1).astype(np.int64)
+        self._sensor_views: dict[SensorModel, SensorView] = {}
+
+    def sensor_view(self, model: SensorModel | None = None) -> SensorView:
+        """The frames as the ``sensors`` observation mode shows them under ``model``
+        (default: :class:`~rmi_learn.sensing.SensorModel`'s defaults), standardised on the
+        training runs; computed once per model."""
+        model = SensorModel() if model is None else model
+        if model not in self._sensor_views:
+            train = self.split_runs("train")
+            self._sensor_views[model] = sensor_view(self.root, self.frames, self.runs, train, model)
+        return self._sensor_views[model]
 
     def split_runs(self, split: str | None = None, size_cm: int | None = None) -> np.ndarray:
         """Run numbers in ``split`` (``train``/``val``/``test``, or None for all), optionally
@@ -116,11 +129,20 @@ class Dataset:
         size_cm: int | None = None,
         history: int = HISTORY,
         horizon: int = HORIZON,
+        observation_mode: str = "privileged",
+        sensors: SensorModel | None = None,
+        anchor_phases: Sequence[str] | None = None,
     ) -> WindowSet:
         """All stride-1 windows of ``split`` (and ``size_cm``): anchor rows t with history
-        rows t-L+1..t and future rows t+1..t+H in one contiguous segment of one run."""
+        rows t-L+1..t and future rows t+1..t+H in one contiguous segment of one run. Their
+        history is y_t (``observation_mode="privileged"``) or what the sensors report
+        (``"sensors"``, under ``sensors``: :meth:`sensor_view`); the targets are y_t's in
+        either mode. ``anchor_phases`` keeps the windows whose anchor row is in one of
+        those phases (e.g. ``("squeeze",)``)."""
         if history < 1 or horizon < 1:
             raise ValueError("history and horizon must be positive")
+        check_observation_mode(observation_mode)
+        view = self.sensor_view(sensors) if observation_mode == "sensors" else None
         runs = self.split_runs(split, size_cm)
         gidx = np.arange(self.row_run.size)
         ok = (
@@ -128,7 +150,9 @@ class Dataset:
             & (gidx - history + 1 >= self.seg_first)
             & (gidx + horizon <= self.seg_last)
         )
-        return WindowSet(self, np.flatnonzero(ok), history, horizon)
+        if anchor_phases is not None:
+            ok &= np.isin(self.frames["phase"].to_numpy().astype(str), list(anchor_phases))
+        return WindowSet(self, np.flatnonzero(ok), history, horizon, view)
 
 
 class WindowSet(_TorchDataset):  # type: ignore[type-arg]
@@ -140,12 +164,29 @@ class WindowSet(_TorchDataset):  # type: ignore[type-arg]
     (H, 1) standardised F_target at t..t+H-1; ``target`` (H, 18) standardised z at t+1..t+H,
     invalid -> 0; ``target_mask`` (H, 18); ``target_c`` (H,) 0/1; ``target_r`` (H,) int64
     friction class 0..3 (none, stick, slip, mixed); ``water_now`` () standardised M_L at t;
+    ``z_now`` (18,) standardised z at t and ``z_now_mask`` (18,) its validity;
     ``run`` int64 run number (``run_ids[run]`` names it) and ``t`` int64 row index of the
     anchor within its run's kept rows. ``anchors`` holds the global frame rows of the anchors.
+    With a :class:`SensorView` ``view`` (the ``sensors`` mode), ``hist`` is (L, C) of its
+    standardised ``SENSOR_INPUTS`` and ``hist_mask`` (L, C) ones.
     """
 
-    def __init__(self, data: Dataset, anchors: np.ndarray, history: int, horizon: int):
+    def __init__(
+        self,
+        data: Dataset,
+        anchors: np.ndarray,
+        history: int,
+        horizon: int,
+        view: SensorView | None = None,
+    ):
         self.data = data
+        self.observation_mode = "privileged" if view is None else "sensors"
+        self.sensors = None if view is None else view.model
+        if view is None:
+            self._hist, self._hist_mask = data.y_std, data.y_mask
+        else:
+            self._hist = view.standardised
+            self._hist_mask = np.ones_like(view.standardised)
         self.anchors = anchors.astype(np.int64)
         self.history = history
         self.horizon = horizon
@@ -164,14 +205,16 @@ class WindowSet(_TorchDataset):  # type: ignore[type-arg]
         a = t[:, None] + self._aoff
         fut = t[:, None] + self._foff
         return {
-            "hist": d.y_std[h],
-            "hist_mask": d.y_mask[h],
+            "hist": self._hist[h],
+            "hist_mask": self._hist_mask[h],
             "actions": d.u_std[a],
             "target": d.z_std[fut],
             "target_mask": d.z_mask[fut],
             "target_c": d.c[fut],
             "target_r": d.r_class[fut],
             "water_now": d.z_std[t, WATER_INDEX],
+            "z_now": d.z_std[t],
+            "z_now_mask": d.z_mask[t],
             "run": d.row_run[t],
             "t": d.row_t[t],
         }
