@@ -53,6 +53,38 @@ def test_a_sensor_mode_gru_estimates_the_state_and_forecasts_y_t(
                                out["z"])  # fmt: skip
 
 
+def test_the_estimate_of_the_water_starts_from_the_wrist_load_s_weight(
+    synthetic_dataset_dir: Path,
+) -> None:
+    ds = load_dataset(synthetic_dataset_dir)
+    model = SensorModel.noiseless(0)
+    view = ds.sensor_view(model)
+    wz, dry = SENSOR_INPUTS.index("W_z"), SENSOR_INPUTS.index("m_dry")
+    water_mean, water_std = float(ds.stats.z_mean[WATER]), float(ds.stats.z_std[WATER])
+    reading = [view.mean[wz], view.std[wz], view.mean[dry], view.std[dry], water_mean, water_std]
+    net = build({"kind": "ac-gru", "hidden": 16, "u_embed": 8, "observation_mode": "sensors",
+                 "weight_reading": [float(v) for v in reading]})  # fmt: skip
+    with torch.no_grad():  # an estimate head that adds nothing
+        net.estimate.weight.zero_()
+        net.estimate.bias.zero_()
+    ws = ds.windows("train", observation_mode="sensors", sensors=model, anchor_phases=("squeeze",))
+    idx = np.arange(min(len(ws), 16))
+    b = ws.batch(idx)
+    rows = ws.anchors[idx][:, None] + np.arange(-15, 1)
+    w_z = ds.frames["W_z"].to_numpy()[rows].mean(axis=1)
+    m_dry = view.values[ws.anchors[idx], dry]
+    want = (-w_z / STANDARD_GRAVITY - m_dry - water_mean) / water_std
+    z0 = net.estimate_state(b["hist"], b["hist_mask"]).detach()
+    np.testing.assert_allclose(z0[:, WATER].numpy(), want, rtol=1e-4, atol=1e-4)
+    assert torch.all(z0[:, [i for i in range(18) if i != WATER]] == 0)
+    assert build(net.config()).weight_reading == net.weight_reading
+    for bad in ([1.0, 0.0, 1.0, 1.0, 1.0, 1.0], [1.0] * 5, [float("nan")] * 6, "x"):
+        with pytest.raises(ValueError, match="weight_reading must be six finite numbers"):
+            build({"kind": "ac-gru", "observation_mode": "sensors", "weight_reading": bad})
+    with pytest.raises(ValueError, match="weight_reading applies to observation_mode 'sensors'"):
+        build({"kind": "ac-gru", "weight_reading": reading})
+
+
 @pytest.mark.parametrize(
     ("kwargs", "says"),
     [
@@ -108,6 +140,7 @@ def test_train_and_eval_in_the_sensor_mode_from_the_command_line(
     assert cfg["extra"]["sensors"]["wrist_N"] == 0.1
     assert cfg["extra"]["sensors"]["latency_ticks"] == 2
     assert cfg["extra"]["sensor_stats"]["names"] == list(SENSOR_INPUTS)
+    assert len(cfg["model"]["weight_reading"]) == 6
     model, _ = load(run)
     assert model.observation_mode == "sensors"
     # The planners score chunks from y_t histories: they refuse it by name.

@@ -20,6 +20,7 @@ model's ``native`` attribute to False) to keep inference in torch.
 from __future__ import annotations
 
 import functools
+import math
 import os
 from typing import Any, NamedTuple, cast
 
@@ -27,13 +28,16 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from rmi_learn.data.dataset.sensor_view import SENSOR_INPUTS
 from rmi_learn.data.schema import CONTINUOUS_INDEX
+from rmi_learn.sensing import STANDARD_GRAVITY
 from rmi_learn.world_models.common import (
     ASSEMBLE_INDEX,
     N_FRIC,
     N_OBS,
     N_U,
     N_Z,
+    WATER,
     WorldModel,
     assemble_obs,
     last_z,
@@ -86,9 +90,11 @@ class GRUWorldModel(WorldModel):
         u_embed: int = 64,
         state_groups: str = "ALL",
         observation_mode: str = "privileged",
+        weight_reading: list[float] | None = None,
     ) -> None:
         self.kind = "ac-gru" if action_conditioned else "state-gru"
         super().__init__(state_groups, observation_mode)
+        self.weight_reading = _checked_reading(weight_reading, observation_mode)
         self.action_conditioned = action_conditioned
         self.hidden, self.layers, self.u_embed = hidden, layers, u_embed
         self.encoder = nn.GRU(2 * self.n_inputs, hidden, layers, batch_first=True)
@@ -115,12 +121,15 @@ class GRUWorldModel(WorldModel):
             self.head.bias[:N_Z].zero_()
 
     def config(self) -> dict[str, Any]:
-        return {
+        cfg = {
             **super().config(),
             "hidden": self.hidden,
             "layers": self.layers,
             "u_embed": self.u_embed,
         }
+        if self.weight_reading is not None:
+            cfg["weight_reading"] = list(self.weight_reading)
+        return cfg
 
     def forward(
         self,
@@ -195,8 +204,25 @@ class GRUWorldModel(WorldModel):
         if self.observation_mode == "privileged":
             return hist[:, -1], hist_mask[:, -1], last_z(hist)
         z0, c0, f0 = self.estimate(h_top).split((N_Z, 1, N_FRIC), dim=-1)
+        if self.weight_reading is not None:
+            z0 = z0 + self._weight_water(hist).unsqueeze(1) * self._water_unit()
         y0 = assemble_obs(z0, torch.sigmoid(c0[:, 0]), torch.softmax(f0, -1)) * self.obs_keep
         return y0, self.obs_keep.expand_as(y0), z0
+
+    def _water_unit(self) -> torch.Tensor:
+        unit = torch.zeros(N_Z, device=self.obs_keep.device)
+        unit[WATER] = 1.0
+        return unit
+
+    def _weight_water(self, hist: torch.Tensor) -> torch.Tensor:
+        """The standardised water the wrist load's weight tells, (B,): the mean vertical
+        load over the history, over g, minus the dry mass (the estimate head learns the
+        rest: the carried water, and everything on the floor, where the load says nothing)."""
+        assert self.weight_reading is not None
+        wz_mean, wz_std, dry_mean, dry_std, water_mean, water_std = self.weight_reading
+        w_z = hist[:, :, SENSOR_INPUTS.index("W_z")].mean(dim=1) * wz_std + wz_mean
+        m_dry = hist[:, -1, SENSOR_INPUTS.index("m_dry")] * dry_std + dry_mean
+        return (-w_z / STANDARD_GRAVITY - m_dry - water_mean) / water_std
 
     def estimate_state(self, hist: torch.Tensor, hist_mask: torch.Tensor) -> torch.Tensor:
         """The standardised continuous state z_t (B, 18) the model starts its forecast from:
@@ -386,6 +412,31 @@ class GRUWorldModel(WorldModel):
             "contact_logit": heads_t[..., N_Z].contiguous(),
             "friction_logit": heads_t[..., N_Z + 1 :].contiguous(),
         }
+
+
+#: The fields of ``weight_reading``: how the sensor inputs W_z (N) and m_dry (kg) and y_t's
+#: water M_L (kg) are standardised (mean, standard deviation each).
+WEIGHT_READING = ("wz_mean", "wz_std", "dry_mean", "dry_std", "water_mean", "water_std")
+
+
+def _checked_reading(reading: Any, observation_mode: str) -> tuple[float, ...] | None:
+    """``reading`` as six finite numbers with positive deviations (ValueError naming the
+    argument otherwise); None stays None (the estimate head reads the water alone)."""
+    if reading is None:
+        return None
+    if observation_mode != "sensors":
+        raise ValueError("weight_reading applies to observation_mode 'sensors' only")
+    try:
+        values = tuple(float(v) for v in reading)
+    except (TypeError, ValueError):
+        values = ()
+    ok = len(values) == len(WEIGHT_READING) and all(math.isfinite(v) for v in values)
+    if not ok or min(values[1], values[3], values[5]) <= 0:
+        raise ValueError(
+            f"weight_reading must be six finite numbers ({', '.join(WEIGHT_READING)}) with "
+            f"positive deviations, got {reading!r}"
+        )
+    return values
 
 
 class ACGRUWM(GRUWorldModel):

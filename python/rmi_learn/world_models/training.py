@@ -133,6 +133,8 @@ def train(
     ds = load_dataset(data)
     stats = ds.stats
     seed_everything(seed, deterministic)
+    if sensing is not None and "weight_reading" not in (model_args or {}):
+        model_args = {**(model_args or {}), "weight_reading": _weight_reading(ds, sensing)}
     net = _build_model(model, state_groups, model_args, observation_mode)
     horizon = _window_horizon(net, model, horizon)
     train_ws, val_ws = _window_sets(
@@ -227,6 +229,26 @@ def _sensing(
             f"state_groups must be ALL with observation_mode 'sensors', got {state_groups!r}"
         )
     return SensorModel() if sensors is None else sensors
+
+
+def _weight_reading(ds: Dataset, sensing: SensorModel) -> list[float]:
+    """How the training data standardise the wrist load, the dry mass and the water: the
+    sensor-mode GRU's ``weight_reading``, with which its estimate of the water starts from
+    what the wrist load weighs (``--model-arg weight_reading=null`` leaves it to the
+    estimate head alone)."""
+    from rmi_learn.data.dataset.sensor_view import SENSOR_INPUTS
+    from rmi_learn.world_models.common import WATER
+
+    view = ds.sensor_view(sensing)
+    wz, dry = SENSOR_INPUTS.index("W_z"), SENSOR_INPUTS.index("m_dry")
+    return [
+        float(view.mean[wz]),
+        float(view.std[wz]),
+        float(view.mean[dry]),
+        float(view.std[dry]),
+        float(ds.stats.z_mean[WATER]),
+        float(ds.stats.z_std[WATER]),
+    ]
 
 
 def _build_model(
