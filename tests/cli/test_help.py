@@ -203,6 +203,7 @@ OPTIONS: dict[str, dict[str, tuple[str, bool]]] = {
         "--steps-per-epoch": ("None", False),
         "--lr": ("None", False),
         "--val-windows": ("4096", False),
+        "--val-phases": ("None", False),
         "--seed": ("0", False),
         "--deterministic": ("False", False),
         "--device": ("'cpu'", False),

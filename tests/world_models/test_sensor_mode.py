@@ -165,6 +165,20 @@ def test_train_and_eval_in_the_sensor_mode_from_the_command_line(
     assert "| AC-GRU-WM (sensors) |" in (out / "table2.md").read_text()
 
 
+def test_validation_can_be_kept_to_the_squeeze(tmp_path: Path, synthetic_dataset_dir: Path) -> None:
+    run = tmp_path / "squeeze"
+    train("ac-gru", synthetic_dataset_dir, run, observation_mode="sensors",
+          val_phases=("squeeze",), epochs=1, progress=False)  # fmt: skip
+    extra = json.loads((run / "config.json").read_text())["extra"]
+    ds = load_dataset(synthetic_dataset_dir)
+    want = len(ds.windows("val", anchor_phases=("squeeze",)))
+    assert extra["val_phases"] == ["squeeze"] and extra["n_val"] == want
+    assert 0 < want < len(ds.windows("val"))
+    with pytest.raises(InputError, match="cannot resume .*val_phases"):
+        train("ac-gru", synthetic_dataset_dir, run, observation_mode="sensors", epochs=1,
+              resume=True, progress=False)  # fmt: skip
+
+
 @pytest.mark.parametrize(
     ("extra", "says"),
     [
@@ -173,6 +187,7 @@ def test_train_and_eval_in_the_sensor_mode_from_the_command_line(
         (["--sensors", '{"latency_ticks": 99}'], "sensors.latency_ticks must be an integer"),
         (["--sensors", '{"lag": 1}'], "sensors has unknown field 'lag'"),
         (["--sensors", "{"], "not a JSON object"),
+        (["--val-phases", "done"], "--val-phases: invalid choice: 'done'"),
     ],
 )
 def test_bad_sensor_options_are_one_line_and_status_2(

@@ -19,7 +19,7 @@ from typing import Any
 
 from rmi_learn.cli.options_file import add_config_option
 from rmi_learn.cli.threads import add_threads, threads_of
-from rmi_learn.data.schema import SPONGE_SIZES_CM
+from rmi_learn.data.schema import LEARNING_PHASES, SPONGE_SIZES_CM
 from rmi_learn.errors import InputError
 from rmi_learn.option_types import count, device, positive, seed
 from rmi_learn.sensing import OBSERVATION_MODES, SensorModel
@@ -139,6 +139,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=4096,
         help="validate on at most this many evenly spaced windows",
     )
+    parser.add_argument(
+        "--val-phases",
+        nargs="+",
+        choices=LEARNING_PHASES,
+        default=None,
+        metavar="PHASE",
+        help="validate, and choose the checkpoint, on the validation windows anchored in these "
+        f"phases only ({', '.join(LEARNING_PHASES)}; e.g. squeeze, where the sponge is "
+        "lifted and the goal-reaching benchmark acts) (default: every validation window)",
+    )
     parser.add_argument("--seed", type=seed, default=0, help="seed of initialisation and draws")
     parser.add_argument(
         "--deterministic", action="store_true", help="use torch's deterministic algorithms only"
@@ -201,6 +211,7 @@ def run(args: argparse.Namespace) -> int:
         horizon=args.horizon,
         observation_mode=args.observation_mode,
         sensors=args.sensors,
+        val_phases=args.val_phases,
     )
     print(json.dumps(summary, indent=2))
     return 0

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -88,6 +89,7 @@ def train(
     horizon: int | None = None,
     observation_mode: str = "privileged",
     sensors: SensorModel | None = None,
+    val_phases: Sequence[str] | None = None,
 ) -> dict[str, Any]:
     """Train one world model into ``out`` and return the run summary (see module doc).
 
@@ -118,7 +120,8 @@ def train(
     under ``sensors`` (default: :class:`~rmi_learn.sensing.SensorModel`'s defaults; see
     :meth:`~rmi_learn.data.dataset.Dataset.windows`) toward the same y_t targets; the model
     then estimates y_t from them (the GRU models only), and config.json records the mode
-    and the sensor model.
+    and the sensor model. ``val_phases`` (e.g. ``("squeeze",)``) validates, and so chooses
+    the checkpoint, on the validation windows anchored in those phases only.
 
     Settings or data it cannot train on (an unknown model or constructor argument, no
     training windows, a resume with other settings) raise
@@ -138,7 +141,7 @@ def train(
     net = _build_model(model, state_groups, model_args, observation_mode)
     horizon = _window_horizon(net, model, horizon)
     train_ws, val_ws = _window_sets(
-        ds, data, size_cm, horizon, shuffle_actions, debug, seed, sensing
+        ds, data, size_cm, horizon, shuffle_actions, debug, seed, sensing, val_phases
     )
     if debug:
         tf_epochs = 1
@@ -146,6 +149,7 @@ def train(
     extra = _extra_config(
         data, size_cm, state_groups, shuffle_actions, seed, debug, ds, train_ws, val_ws
     )
+    extra["val_phases"] = None if val_phases is None else list(val_phases)
     extra["observation_mode"] = observation_mode
     extra["sensors"] = None if sensing is None else sensing.as_dict()
     if sensing is not None:
@@ -294,6 +298,7 @@ def _window_sets(
     debug: bool,
     seed: int,
     sensing: SensorModel | None = None,
+    val_phases: Sequence[str] | None = None,
 ) -> tuple[Any, Any]:
     """The training and validation windows (histories of the sensors under ``sensing``,
     else y_t): with ``shuffle_actions`` each history paired with another run's chunk, in
@@ -303,9 +308,11 @@ def _window_sets(
     mode = "privileged" if sensing is None else "sensors"
     kw: dict[str, Any] = {"horizon": horizon, "observation_mode": mode, "sensors": sensing}
     train_ws: Any = ds.windows("train", size_cm=size_cm, **kw)
-    val_ws: Any = ds.windows("val", size_cm=size_cm, **kw)
+    val_ws: Any = ds.windows("val", size_cm=size_cm, anchor_phases=val_phases, **kw)
     if len(train_ws) == 0:
         raise ValueError(f"no training windows in {data} (size {size_cm})")
+    if val_phases is not None and len(val_ws) == 0:
+        raise ValueError(f"val_phases {list(val_phases)}: no validation windows in {data}")
     if shuffle_actions:
         train_ws = ShuffledActions(train_ws, seed=seed)
         val_ws = ShuffledActions(val_ws, seed=seed + 1)

@@ -49,6 +49,7 @@ RESUME_FIXED = (
     "horizon",
     "observation_mode",
     "sensors",
+    "val_phases",
 )
 #: Huber threshold of the loss in standardised units (torch's default).
 HUBER_DELTA = 1.0
@@ -59,6 +60,7 @@ RESUME_LEGACY: dict[str, Any] = {
     "horizon": 64,
     "observation_mode": "privileged",
     "sensors": None,
+    "val_phases": None,
 }
 #: How the continuous channels' errors are scaled in the loss (see ``--loss-scale``).
 LOSS_SCALES = ("state", "change")
