@@ -70,6 +70,21 @@ def test_train_policy_takes_lists_and_required_options_from_the_file(tmp_path: P
     assert (args.channels, args.objective) == ((16, 32), "diffusion")
 
 
+def test_an_option_of_several_values_takes_a_list_or_one_value(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    base = {"model": "ac-gru", "data": "ds", "out": "o", "observation-mode": "sensors"}
+    args = parse(
+        ["train-wm", "--config", str(write(tmp_path, {**base, "val-phases": ["squeeze", "lift"]}))]
+    )
+    assert (args.val_phases, args.observation_mode) == (["squeeze", "lift"], "sensors")
+    args = parse(["train-wm", "--config", str(write(tmp_path, {**base, "val_phases": "squeeze"}))])
+    assert args.val_phases == ["squeeze"]
+    bad = write(tmp_path, {**base, "val-phases": ["squeeze", "done"]})
+    assert main(["train-wm", "--config", str(bad)]) == 2
+    assert "'val-phases' must be one of" in capsys.readouterr().err
+
+
 @pytest.mark.skipif(sys.version_info < (3, 11), reason="tomllib needs Python 3.11")
 def test_a_toml_file(tmp_path: Path) -> None:
     path = tmp_path / "options.toml"

@@ -161,6 +161,11 @@ def _tokens(action: argparse.Action, key: str, value: Any, where: str) -> list[s
         if not isinstance(value, list):
             raise InputError(f"{where}: {key!r} expects a list, got {_kind(value)}")
         return [f"{flag}={_scalar_text(action, key, v, where)}" for v in value]
+    if action.nargs in ("+", "*"):  # --val-phases squeeze lift: a list or one value
+        values = value if isinstance(value, list) else [value]
+        if not values and action.nargs == "+":
+            raise InputError(f"{where}: {key!r} expects at least one value")
+        return [flag, *(_scalar_text(action, key, v, where) for v in values)]
     if isinstance(value, list) and action.type is counts:  # comma-separated: --channels
         if not value or not all(isinstance(v, int) and not isinstance(v, bool) for v in value):
             raise InputError(f"{where}: {key!r} expects a list of integers")
