@@ -103,6 +103,14 @@ class RolloutMetrics:
         return {k: float(v) for k, v in r.items()}
 
 
+def evenly_spaced(n: int, max_windows: int | None) -> np.ndarray:
+    """Indices of the windows an evaluation of at most ``max_windows`` of ``n`` scores:
+    all of them, or that many evenly spaced."""
+    if max_windows is not None and n > max_windows:
+        return np.linspace(0, n - 1, max_windows).round().astype(np.int64)
+    return np.arange(n)
+
+
 @torch.no_grad()
 def evaluate_rollouts(
     model: torch.nn.Module,
@@ -125,10 +133,7 @@ def evaluate_rollouts(
     was = model.training
     model.eval()
     acc = RolloutMetrics(np.asarray(z_std, dtype=np.float64), steps)
-    n = len(data)
-    idx_all = np.arange(n)
-    if max_windows is not None and n > max_windows:
-        idx_all = np.linspace(0, n - 1, max_windows).round().astype(np.int64)
+    idx_all = evenly_spaced(len(data), max_windows)
     loss_sum, loss_n = 0.0, 0
     for s in range(0, len(idx_all), batch_size):
         batch = data.batch(idx_all[s : s + batch_size])
@@ -376,6 +381,9 @@ def write_tables(results: list[dict[str, Any]], out_dir: str | Path) -> dict[str
     return paths
 
 
+#: The seed of the shuffled-command rows' pairing of histories and chunks.
+SHUFFLE_SEED = 12345
+
 #: A cell of the tables: (model kind, state groups, shuffled actions, sponge size,
 #: observation mode).
 CellKey = tuple[str, str, bool, int, str]
@@ -392,7 +400,7 @@ def evaluate_runs(
     max_windows: int | None = None,
     device: str = "cpu",
     latency: bool = True,
-    shuffle_seed: int = 12345,
+    shuffle_seed: int = SHUFFLE_SEED,
 ) -> list[dict[str, Any]]:
     """One record per (run, sponge size): ``method``, ``kind``, ``state_groups``,
     ``shuffled``, ``size_cm``, ``trained_size_cm``, ``run_dir``, ``split``, ``data`` (the
@@ -408,9 +416,27 @@ def evaluate_runs(
     the measured force read off the chunk's setpoints, built from the dataset's statistics).
     """
     ds = load_dataset(data)
+    entries = _entries(runs, ds.stats)
+    return _evaluate_entries(
+        entries, ds, data, split, batch_size, max_windows, device, latency, shuffle_seed
+    )
+
+
+def _evaluate_entries(
+    entries: list[tuple[Any, dict[str, Any], str]],
+    ds: Dataset,
+    data: str | Path,
+    split: str,
+    batch_size: int,
+    max_windows: int | None,
+    device: str,
+    latency: bool,
+    shuffle_seed: int,
+) -> list[dict[str, Any]]:
+    """:func:`evaluate_runs` of the loaded ``entries`` (see :func:`_entries`)."""
     sizes = sorted(int(s) for s in ds.runs["size_cm"].unique().to_list())
     chosen: dict[CellKey, Cell] = {}
-    for model, cfg, run_dir in _entries(runs, ds.stats):
+    for model, cfg, run_dir in entries:
         _check_stats(cfg, ds.stats, run_dir, data)
         _add_to_cells(chosen, model, cfg, run_dir, sizes, ds, split, data)
     results = _evaluate_cells(
@@ -585,22 +611,18 @@ def eval_wm(
     ``out`` (:func:`write_tables`); returns the written files by name. Runs that cannot be
     evaluated together raise :class:`~rmi_learn.errors.InputError`."""
     with input_errors(ValueError):
-        results = evaluate_runs(
-            list(runs),
-            data,
-            split=split,
-            batch_size=batch_size,
-            max_windows=max_windows,
-            device=device,
-            latency=latency,
+        ds = load_dataset(data)
+        entries = _entries(list(runs), ds.stats)
+        results = _evaluate_entries(
+            entries, ds, data, split, batch_size, max_windows, device, latency, SHUFFLE_SEED
         )
     paths = write_tables(results, out)
     if any(r.get("observation_mode") == "sensors" for r in results):
-        from rmi_learn.world_models.sensor_table import evaluate_sensor_table, write_sensor_table
+        from rmi_learn.world_models.sensor_table import sensor_records, write_sensor_table
 
         with input_errors(ValueError):
-            records = evaluate_sensor_table(
-                list(runs), data, split=split, batch_size=batch_size, max_windows=max_windows
+            records = sensor_records(
+                [(m, cfg) for m, cfg, _ in entries], ds, split, batch_size, max_windows
             )
         paths.update(write_sensor_table(records, out))
     return paths

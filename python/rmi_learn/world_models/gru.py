@@ -28,9 +28,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from rmi_learn.data.dataset.sensor_view import SENSOR_INPUTS
 from rmi_learn.data.schema import CONTINUOUS_INDEX
-from rmi_learn.sensing import STANDARD_GRAVITY
 from rmi_learn.world_models.common import (
     ASSEMBLE_INDEX,
     N_FRIC,
@@ -42,6 +40,7 @@ from rmi_learn.world_models.common import (
     assemble_obs,
     last_z,
 )
+from rmi_learn.world_models.weight_persistence import WEIGHT_READING, weight_water
 
 #: Environment variable: "0" keeps GRU inference in torch instead of the native rollout.
 NATIVE_ENV = "RMI_WM_NATIVE"
@@ -205,24 +204,12 @@ class GRUWorldModel(WorldModel):
             return hist[:, -1], hist_mask[:, -1], last_z(hist)
         z0, c0, f0 = self.estimate(h_top).split((N_Z, 1, N_FRIC), dim=-1)
         if self.weight_reading is not None:
-            z0 = z0 + self._weight_water(hist).unsqueeze(1) * self._water_unit()
+            # Start from what the wrist load weighs: the head learns the carried water and,
+            # on the floor, where the load says nothing, the rest.
+            z0 = z0.clone()
+            z0[:, WATER] += weight_water(hist, self.weight_reading)
         y0 = assemble_obs(z0, torch.sigmoid(c0[:, 0]), torch.softmax(f0, -1)) * self.obs_keep
         return y0, self.obs_keep.expand_as(y0), z0
-
-    def _water_unit(self) -> torch.Tensor:
-        unit = torch.zeros(N_Z, device=self.obs_keep.device)
-        unit[WATER] = 1.0
-        return unit
-
-    def _weight_water(self, hist: torch.Tensor) -> torch.Tensor:
-        """The standardised water the wrist load's weight tells, (B,): the mean vertical
-        load over the history, over g, minus the dry mass (the estimate head learns the
-        rest: the carried water, and everything on the floor, where the load says nothing)."""
-        assert self.weight_reading is not None
-        wz_mean, wz_std, dry_mean, dry_std, water_mean, water_std = self.weight_reading
-        w_z = hist[:, :, SENSOR_INPUTS.index("W_z")].mean(dim=1) * wz_std + wz_mean
-        m_dry = hist[:, -1, SENSOR_INPUTS.index("m_dry")] * dry_std + dry_mean
-        return (-w_z / STANDARD_GRAVITY - m_dry - water_mean) / water_std
 
     def estimate_state(self, hist: torch.Tensor, hist_mask: torch.Tensor) -> torch.Tensor:
         """The standardised continuous state z_t (B, 18) the model starts its forecast from:
@@ -412,11 +399,6 @@ class GRUWorldModel(WorldModel):
             "contact_logit": heads_t[..., N_Z].contiguous(),
             "friction_logit": heads_t[..., N_Z + 1 :].contiguous(),
         }
-
-
-#: The fields of ``weight_reading``: how the sensor inputs W_z (N) and m_dry (kg) and y_t's
-#: water M_L (kg) are standardised (mean, standard deviation each).
-WEIGHT_READING = ("wz_mean", "wz_std", "dry_mean", "dry_std", "water_mean", "water_std")
 
 
 def _checked_reading(reading: Any, observation_mode: str) -> tuple[float, ...] | None:

@@ -25,6 +25,9 @@ MODELS: dict[str, type[WorldModel]] = {
     "transformer": TransformerWM,
 }
 
+#: The models that can read the ``sensors`` observation mode instead of y_t.
+SENSOR_MODEL_KINDS: tuple[str, ...] = tuple(sorted(k for k, c in MODELS.items() if c.takes_sensors))
+
 #: Names used in the paper's tables.
 DISPLAY_NAMES: dict[str, str] = {
     "baseline": "Baseline",

@@ -20,11 +20,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from rmi_learn.data.dataset import load_dataset
+from rmi_learn.data.dataset import Dataset
 from rmi_learn.sensing import SensorModel
 from rmi_learn.world_models.baseline import BaselineWM
 from rmi_learn.world_models.common import WATER
-from rmi_learn.world_models.registry import DISPLAY_NAMES, load
+from rmi_learn.world_models.registry import DISPLAY_NAMES
 from rmi_learn.world_models.weight_persistence import WeightPersistenceWM
 
 #: The phases the table's windows are anchored in.
@@ -48,36 +48,30 @@ def _water_now_mae_g(model: Any, ws: Any, idx: np.ndarray, water_std: float, bs:
 
 
 def _score(model: Any, ws: Any, z_std: np.ndarray, max_windows: int | None, bs: int) -> dict:
-    from rmi_learn.world_models.evaluation import evaluate_rollouts
+    from rmi_learn.world_models.evaluation import evaluate_rollouts, evenly_spaced
 
-    n = len(ws)
-    idx = np.arange(n)
-    if max_windows is not None and n > max_windows:
-        idx = np.linspace(0, n - 1, max_windows).round().astype(np.int64)
+    idx = evenly_spaced(len(ws), max_windows)
     model.eval()
     now = _water_now_mae_g(model, ws, idx, float(z_std[WATER]), bs)
     m = evaluate_rollouts(model, ws, z_std, batch_size=bs, max_windows=max_windows, steps=(STEP,))
     return {"water_now_mae_g": now, f"water_mae_g@{STEP}": float(m[f"water_mae_g@{STEP}"])}
 
 
-def evaluate_sensor_table(
-    runs: Sequence[str | Path],
-    data: str | Path,
-    *,
+def sensor_records(
+    runs: Sequence[tuple[Any, dict[str, Any]]],
+    ds: Dataset,
     split: str = "test",
     batch_size: int = 256,
     max_windows: int | None = None,
 ) -> list[dict[str, Any]]:
     """The table's records, one per (row, size): ``method``, ``observation_mode``,
     ``size_cm``, ``windows``, ``water_now_mae_g``, ``water_mae_g@32``, ``seeds`` and, for a
-    row of several seeds, ``per_seed``. ``runs`` are ``rmi train-wm`` outputs; those of
-    AC-GRU-WM on y_t (all state groups, commands in order) and of the sensor-mode models
-    make rows."""
-    ds = load_dataset(data)
+    row of several seeds, ``per_seed``. ``runs`` are loaded ``rmi train-wm`` outputs
+    (model, config.json); those of AC-GRU-WM on y_t (all state groups, commands in order)
+    and of the sensor-mode models make rows."""
     z_std = np.asarray(ds.stats.z_std, dtype=np.float64)
     groups: dict[tuple[str, str, str], list[tuple[Any, dict[str, Any]]]] = {}
-    for run in runs:
-        model, cfg = load(run)
+    for model, cfg in runs:
         extra = cfg.get("extra") or {}
         mode = str(extra.get("observation_mode") or "privileged")
         kind = cfg["model"]["kind"]
@@ -87,7 +81,11 @@ def evaluate_sensor_table(
             continue
         sensors = json.dumps(extra.get("sensors"), sort_keys=True)
         groups.setdefault((kind, mode, sensors), []).append((model, extra))
-    sensor_models = sorted({k[2] for k in groups if k[1] == "sensors"})
+    sensor_models = {
+        sensors: SensorModel.from_mapping(json.loads(sensors))
+        for sensors in sorted({k[2] for k in groups if k[1] == "sensors"})
+    }
+    weights = {s: WeightPersistenceWM.from_dataset(ds, sm) for s, sm in sensor_models.items()}
     records = []
     for size in sorted(int(s) for s in ds.runs["size_cm"].unique().to_list()):
         ws_p = ds.windows(split, size, anchor_phases=ANCHOR_PHASES)
@@ -99,14 +97,13 @@ def evaluate_sensor_table(
         for (kind, mode, _), members in sorted(groups.items()):
             if mode == "privileged":
                 rows.append((f"{DISPLAY_NAMES[kind]} (y_t)", mode, ws_p, members))
-        for sensors in sensor_models:
-            sm = SensorModel.from_mapping(json.loads(sensors))
+        for sensors, sm in sensor_models.items():
             ws_s = ds.windows(
                 split, size, observation_mode="sensors", sensors=sm, anchor_phases=ANCHOR_PHASES
             )
-            weight = WeightPersistenceWM.from_dataset(ds, sm)
             label = "" if len(sensor_models) == 1 else f", sensors {sensors}"
-            rows.append((f"Weight estimate (sensors{label})", "sensors", ws_s, [(weight, {})]))
+            weight = [(weights[sensors], {})]
+            rows.append((f"Weight estimate (sensors{label})", "sensors", ws_s, weight))
             for (kind, mode, s), members in sorted(groups.items()):
                 if mode == "sensors" and s == sensors:
                     rows.append((f"{DISPLAY_NAMES[kind]} (sensors{label})", mode, ws_s, members))
@@ -168,4 +165,4 @@ def write_sensor_table(records: list[dict[str, Any]], out: str | Path) -> dict[s
     }
 
 
-__all__ = ["ANCHOR_PHASES", "evaluate_sensor_table", "write_sensor_table"]
+__all__ = ["ANCHOR_PHASES", "sensor_records", "write_sensor_table"]

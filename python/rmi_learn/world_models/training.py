@@ -131,13 +131,18 @@ def train(
     from rmi_learn.trainer import seed_everything
 
     _check_request(model, state_groups, loss_scale, tensorboard)
-    sensing = _sensing(model, state_groups, observation_mode, sensors)
+    sensing = _sensing(model, observation_mode, sensors)
     out = Path(out)
     ds = load_dataset(data)
     stats = ds.stats
     seed_everything(seed, deterministic)
     if sensing is not None and "weight_reading" not in (model_args or {}):
-        model_args = {**(model_args or {}), "weight_reading": _weight_reading(ds, sensing)}
+        # The estimate of the water starts from what the wrist load weighs
+        # (``--model-arg weight_reading=null`` leaves it to the estimate head alone).
+        from rmi_learn.world_models.weight_persistence import weight_reading
+
+        reading = list(weight_reading(ds, sensing))
+        model_args = {**(model_args or {}), "weight_reading": reading}
     net = _build_model(model, state_groups, model_args, observation_mode)
     horizon = _window_horizon(net, model, horizon)
     train_ws, val_ws = _window_sets(
@@ -149,19 +154,7 @@ def train(
     extra = _extra_config(
         data, size_cm, state_groups, shuffle_actions, seed, debug, ds, train_ws, val_ws
     )
-    extra["val_phases"] = None if val_phases is None else list(val_phases)
-    extra["observation_mode"] = observation_mode
-    extra["sensors"] = None if sensing is None else sensing.as_dict()
-    if sensing is not None:
-        from rmi_learn.data.dataset.sensor_view import SENSOR_INPUTS
-
-        view = ds.sensor_view(sensing)
-        # How the model's inputs are standardised, for a caller that feeds it online.
-        extra["sensor_stats"] = {
-            "names": list(SENSOR_INPUTS),
-            "mean": view.mean.tolist(),
-            "std": view.std.tolist(),
-        }
+    extra.update(_sensing_config(ds, sensing, val_phases))
     if not net.trainable:
         validate = _validation(val_ws, stats.z_std, horizon, val_windows, device, None)
         return _closed_form(net, model, out, train_ws, validate, extra, resume, tensorboard)
@@ -211,12 +204,11 @@ def _check_request(
         raise ValueError(f"--state-groups applies to learned models, not {model}")
 
 
-def _sensing(
-    model: str, state_groups: str, observation_mode: str, sensors: SensorModel | None
-) -> SensorModel | None:
+def _sensing(model: str, observation_mode: str, sensors: SensorModel | None) -> SensorModel | None:
     """The sensor model of a sensor-mode training (None for y_t); ValueError naming the
-    field for a mode, model or state groups the sensors mode does not take."""
-    from rmi_learn.world_models.common import SENSOR_MODEL_KINDS
+    field for a mode or a model the sensors mode does not take (the model itself refuses
+    state groups other than ALL)."""
+    from rmi_learn.world_models.registry import SENSOR_MODEL_KINDS
 
     check_observation_mode(observation_mode)
     if observation_mode == "privileged":
@@ -228,31 +220,7 @@ def _sensing(
             f"observation_mode 'sensors' is taken by {', '.join(SENSOR_MODEL_KINDS)}, "
             f"not {model} (it reads y_t)"
         )
-    if state_groups != "ALL":
-        raise ValueError(
-            f"state_groups must be ALL with observation_mode 'sensors', got {state_groups!r}"
-        )
     return SensorModel() if sensors is None else sensors
-
-
-def _weight_reading(ds: Dataset, sensing: SensorModel) -> list[float]:
-    """How the training data standardise the wrist load, the dry mass and the water: the
-    sensor-mode GRU's ``weight_reading``, with which its estimate of the water starts from
-    what the wrist load weighs (``--model-arg weight_reading=null`` leaves it to the
-    estimate head alone)."""
-    from rmi_learn.data.dataset.sensor_view import SENSOR_INPUTS
-    from rmi_learn.world_models.common import WATER
-
-    view = ds.sensor_view(sensing)
-    wz, dry = SENSOR_INPUTS.index("W_z"), SENSOR_INPUTS.index("m_dry")
-    return [
-        float(view.mean[wz]),
-        float(view.std[wz]),
-        float(view.mean[dry]),
-        float(view.std[dry]),
-        float(ds.stats.z_mean[WATER]),
-        float(ds.stats.z_std[WATER]),
-    ]
 
 
 def _build_model(
@@ -347,6 +315,29 @@ def _extra_config(
         "n_val": len(val_ws),
         "stats": ds.stats.to_json(),
     }
+
+
+def _sensing_config(
+    ds: Dataset, sensing: SensorModel | None, val_phases: Sequence[str] | None
+) -> dict[str, Any]:
+    """What config.json records of the observation mode and the validation phases; in the
+    sensors mode also how the model's inputs are standardised (``sensor_stats``), for a
+    caller that feeds it online."""
+    out: dict[str, Any] = {
+        "val_phases": None if val_phases is None else list(val_phases),
+        "observation_mode": "privileged" if sensing is None else "sensors",
+        "sensors": None if sensing is None else sensing.as_dict(),
+    }
+    if sensing is not None:
+        from rmi_learn.data.dataset.sensor_view import SENSOR_INPUTS
+
+        view = ds.sensor_view(sensing)
+        out["sensor_stats"] = {
+            "names": list(SENSOR_INPUTS),
+            "mean": view.mean.tolist(),
+            "std": view.std.tolist(),
+        }
+    return out
 
 
 def _validation(

@@ -12,6 +12,7 @@ has to beat it, as a y_t model has to beat the Baseline.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -24,32 +25,49 @@ from rmi_learn.world_models.common import N_FRIC, N_Z, WATER, WorldModel
 _WZ = SENSOR_INPUTS.index("W_z")
 _DRY = SENSOR_INPUTS.index("m_dry")
 
+#: The fields of a weight reading: how the sensor inputs W_z (N) and m_dry (kg) and y_t's
+#: water M_L (kg) are standardised (mean, standard deviation each).
+WEIGHT_READING = ("wz_mean", "wz_std", "dry_mean", "dry_std", "water_mean", "water_std")
+
+
+def weight_reading(ds: Any, sensors: SensorModel) -> tuple[float, ...]:
+    """The :data:`WEIGHT_READING` of ``ds`` under ``sensors``: its sensor view's
+    standardisation of W_z and m_dry and its statistics' of M_L."""
+    view = ds.sensor_view(sensors)
+    return tuple(
+        float(v)
+        for v in (
+            view.mean[_WZ],
+            view.std[_WZ],
+            view.mean[_DRY],
+            view.std[_DRY],
+            ds.stats.z_mean[WATER],
+            ds.stats.z_std[WATER],
+        )
+    )
+
+
+def weight_water(hist: torch.Tensor, reading: Sequence[float], offset: float = 0.0) -> torch.Tensor:
+    """The standardised water the wrist load's weight tells of each history (B, L, C) of
+    standardised ``SENSOR_INPUTS``, (B,): the mean vertical load over the history, over g,
+    minus the dry mass and the carried water ``offset`` (kg)."""
+    wz_mean, wz_std, dry_mean, dry_std, water_mean, water_std = reading
+    w_z = hist[:, :, _WZ].mean(dim=1) * wz_std + wz_mean
+    m_dry = hist[:, -1, _DRY] * dry_std + dry_mean
+    return (-w_z / STANDARD_GRAVITY - m_dry - offset - water_mean) / water_std
+
 
 class WeightPersistenceWM(WorldModel):
-    """Water from the wrist load's weight, persisted (see the module docstring).
-
-    ``water_mean``, ``water_std`` (kg) standardise M_L; ``wz_mean``, ``wz_std`` (N) and
-    ``dry_mean``, ``dry_std`` (kg) are the sensor inputs' standardisation; ``offset`` (kg)
-    the carried water."""
+    """Water from the wrist load's weight, persisted (see the module docstring):
+    ``reading`` is a :data:`WEIGHT_READING`, ``offset`` (kg) the carried water."""
 
     kind = "weight-persistence"
     trainable = False
     takes_sensors = True
 
-    def __init__(
-        self,
-        water_mean: float = 0.0,
-        water_std: float = 1.0,
-        wz_mean: float = 0.0,
-        wz_std: float = 1.0,
-        dry_mean: float = 0.0,
-        dry_std: float = 1.0,
-        offset: float = 0.0,
-    ) -> None:
+    def __init__(self, reading: Sequence[float], offset: float = 0.0) -> None:
         super().__init__("ALL", "sensors")
-        self.scale = tuple(
-            float(v) for v in (water_mean, water_std, wz_mean, wz_std, dry_mean, dry_std)
-        )
+        self.reading = tuple(float(v) for v in reading)
         self.offset = float(offset)
 
     @classmethod
@@ -57,30 +75,16 @@ class WeightPersistenceWM(WorldModel):
         """Fitted on ``ds``'s training runs: the offset is the mean over their squeeze rows
         of the weight estimate minus M_L, under ``sensors``."""
         view = ds.sensor_view(sensors)
-        rows = np.isin(ds.row_run, ds.split_runs("train")) & (
-            ds.frames["phase"].to_numpy().astype(str) == "squeeze"
-        )
+        rows = np.isin(ds.row_run, ds.split_runs("train")) & (ds.row_phase == "squeeze")
         water = ds.frames["M_L"].to_numpy()[rows]
         weight = -view.values[rows, _WZ] / STANDARD_GRAVITY - view.values[rows, _DRY]
         offset = float(np.mean(weight - water)) if rows.any() else 0.0
-        return cls(
-            float(ds.stats.z_mean[WATER]),
-            float(ds.stats.z_std[WATER]),
-            float(view.mean[_WZ]),
-            float(view.std[_WZ]),
-            float(view.mean[_DRY]),
-            float(view.std[_DRY]),
-            offset,
-        )
+        return cls(weight_reading(ds, sensors), offset)
 
     def estimate_state(self, hist: torch.Tensor, hist_mask: torch.Tensor) -> torch.Tensor:
         """z_t (B, 18) standardised: the water read off the wrist load, the rest zero."""
-        water_mean, water_std, wz_mean, wz_std, dry_mean, dry_std = self.scale
-        w_z = hist[:, :, _WZ].mean(dim=1) * wz_std + wz_mean
-        m_dry = hist[:, -1, _DRY] * dry_std + dry_mean
-        water = -w_z / STANDARD_GRAVITY - m_dry - self.offset
         z = hist.new_zeros(hist.shape[0], N_Z)
-        z[:, WATER] = (water - water_mean) / water_std
+        z[:, WATER] = weight_water(hist, self.reading, self.offset)
         return z
 
     def forward(
@@ -96,4 +100,4 @@ class WeightPersistenceWM(WorldModel):
         }
 
 
-__all__ = ["WeightPersistenceWM"]
+__all__ = ["WEIGHT_READING", "WeightPersistenceWM", "weight_reading", "weight_water"]

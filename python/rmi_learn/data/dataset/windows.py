@@ -70,11 +70,14 @@ class Dataset:
             raise ValueError(f"{info_path}: dataset format {got!r} != {FORMAT_VERSION}")
         self.stats = read_stats(self.root / "stats.json")
         self.runs = read_table(self.root / "runs.parquet", ("run", "run_id", "split"))
-        self.frames = read_table(self.root / "frames.parquet", ("run", "t", "segment", *OBS))
+        self.frames = read_table(
+            self.root / "frames.parquet", ("run", "t", "segment", "phase", *OBS)
+        )
         f = self.frames
         self.run_ids: list[str] = self.runs.sort("run")["run_id"].to_list()
         self.row_run = f["run"].to_numpy().astype(np.int64)
         self.row_t = f["t"].to_numpy().astype(np.int64)
+        self.row_phase = f["phase"].to_numpy().astype(str)
         seg = f["segment"].to_numpy()
         n = f.height
         # First and last global row of each row's segment (segments are contiguous rows).
@@ -151,7 +154,7 @@ class Dataset:
             & (gidx + horizon <= self.seg_last)
         )
         if anchor_phases is not None:
-            ok &= np.isin(self.frames["phase"].to_numpy().astype(str), list(anchor_phases))
+            ok &= np.isin(self.row_phase, list(anchor_phases))
         return WindowSet(self, np.flatnonzero(ok), history, horizon, view)
 
 
